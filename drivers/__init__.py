@@ -1,0 +1,1 @@
+"""livecap drivers package."""

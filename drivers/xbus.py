@@ -1,0 +1,520 @@
+"""Xsens Xbus (MT low-level communication protocol): frame codec, MTData2 records, configuration.
+
+Wire format of one message (all multi-byte fields big-endian)::
+
+    FA  BID  MID  LEN  [EXT_H EXT_L when LEN == 0xFF]  DATA...  CS
+
+The checksum makes the sum of every byte after the preamble (BID .. CS) zero modulo 256. BID
+0xFF is the master device; an Xbus Master / Awinda station puts one BID per tracker on the bus.
+MTData2 (MID 0x36) payloads are a sequence of ``XDI (u16) SIZE (u8) VALUE`` items; the low two
+bits of an XDI give the precision (float32, fixed 12.20, fixed 16.32, float64), bits 2-3 the
+coordinate system of orientation outputs (ENU, NED, NWU).
+
+World convention: decoded orientations are sensor-to-world quaternions (w, x, y, z) in the
+livecap world (+Y up, right-handed): x = East, y = Up, z = South (-North), whatever
+coordinate system the device used. Only the global frame is converted; the sensor frame is
+taken as reported (a constant sensor-frame rotation is absorbed by sensor-to-segment
+calibration). acc / gyro / mag stay in the sensor frame, as sent.
+
+Rotation matrices travel column-major (a..i = R[0,0], R[1,0], R[2,0], R[0,1], ...); Euler
+angles are (roll, pitch, yaw) in degrees with R = Rz(yaw) Ry(pitch) Rx(roll).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Iterable, Protocol
+
+import numpy as np
+
+from live.errors import DeviceError, FormatError
+from live.rotations import euler_to_matrix, matrix_to_euler, matrix_to_quat, quat_to_matrix
+
+PREAMBLE = 0xFA
+BID_MASTER = 0xFF
+MAX_DATA_LEN = 2048  # the LLCP's limit for extended-length messages
+
+# Message ids (acknowledgements are MID + 1).
+MID_REQ_DID = 0x00
+MID_DEVICE_ID = 0x01
+MID_GOTO_MEASUREMENT = 0x10
+MID_GOTO_MEASUREMENT_ACK = 0x11
+MID_GOTO_CONFIG = 0x30
+MID_GOTO_CONFIG_ACK = 0x31
+MID_MTDATA2 = 0x36
+MID_WAKEUP = 0x3E
+MID_WAKEUP_ACK = 0x3F
+MID_RESET = 0x40
+MID_RESET_ACK = 0x41
+MID_ERROR = 0x42
+MID_SET_OUTPUT_CONFIGURATION = 0xC0
+MID_SET_OUTPUT_CONFIGURATION_ACK = 0xC1
+
+# Error codes carried by MID_ERROR.
+ERR_INVALID_MESSAGE = 0x04
+ERR_INVALID_PARAMETER = 0x21
+
+# MTData2 data identifiers (precision and coordinate bits cleared).
+XDI_PACKET_COUNTER = 0x1020
+XDI_SAMPLE_TIME_FINE = 0x1060
+XDI_QUATERNION = 0x2010
+XDI_ROTATION_MATRIX = 0x2020
+XDI_EULER_ANGLES = 0x2030
+XDI_ACCELERATION = 0x4020
+XDI_RATE_OF_TURN = 0x8020
+XDI_MAGNETIC_FIELD = 0xC020
+XDI_STATUS_WORD = 0xE020
+XDI_DEVICE_ID = 0xE080
+XDI_TYPE_MASK = 0xFFF0
+#: Output frequency meaning "with every packet" (counters, sample time).
+FREQ_EVERY_PACKET = 0xFFFF
+
+PRECISIONS = {"float32": 0, "fp1220": 1, "fp1632": 2, "float64": 3}
+COORDS = {"enu": 0x0, "ned": 0x4, "nwu": 0x8}
+ORIENTATIONS = {"quat": XDI_QUATERNION, "matrix": XDI_ROTATION_MATRIX, "euler": XDI_EULER_ANGLES}
+_VALUE_SIZE = {0: 4, 1: 4, 2: 6, 3: 8}
+
+# Coordinates of each device global frame expressed in the livecap world (columns = device axes).
+_ENU_TO_WORLD = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], dtype=np.float64)
+_DEVICE_TO_ENU = {
+    0x0: np.eye(3),
+    0x4: np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]], dtype=np.float64),  # NED -> ENU
+    0x8: np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=np.float64),  # NWU -> ENU
+}
+#: coordinate bits -> quaternion taking device-global coordinates to livecap world coordinates.
+FRAME_TO_WORLD: dict[int, tuple[float, float, float, float]] = {
+    c: tuple(float(v) for v in matrix_to_quat(_ENU_TO_WORLD @ m)) for c, m in _DEVICE_TO_ENU.items()
+}
+
+
+def _qmul(a: tuple, b: tuple) -> tuple[float, float, float, float]:
+    """Hamilton product of two 4-tuples, in plain floats (the decoder's hot path)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _qconj(q: tuple) -> tuple[float, float, float, float]:
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+# ----------------------------------------------------------------------------- messages
+
+
+def checksum(body: bytes | bytearray) -> int:
+    """The CS byte for ``body`` = BID .. last data byte (so that the full sum is 0 mod 256)."""
+    return (-sum(body)) & 0xFF
+
+
+def encode_message(bid: int, mid: int, data: bytes = b"") -> bytes:
+    """One complete Xbus message (preamble .. checksum); extended length above 254 bytes."""
+    n = len(data)
+    if n > MAX_DATA_LEN:
+        raise ValueError(f"Xbus payload of {n} bytes exceeds {MAX_DATA_LEN}")
+    if n < 0xFF:
+        body = bytes((bid & 0xFF, mid & 0xFF, n)) + bytes(data)
+    else:
+        body = bytes((bid & 0xFF, mid & 0xFF, 0xFF, n >> 8, n & 0xFF)) + bytes(data)
+    return b"\xfa" + body + bytes((checksum(body),))
+
+
+@dataclass(frozen=True, slots=True)
+class XbusMessage:
+    """A checksum-valid non-data message (acks, errors, device id, commands)."""
+
+    bid: int
+    mid: int
+    data: bytes
+
+
+@dataclass(slots=True)
+class XbusSample:
+    """One decoded MTData2 record.
+
+    quat: (4,) float64 (w, x, y, z) sensor-to-world in the livecap world (see module doc), from
+    whatever orientation representation was sent; acc (3,) m/s^2, gyro (3,) rad/s, mag (3,)
+    a.u., all in the sensor frame. Fields the device did not send are None.
+    """
+
+    bid: int
+    device_id: int | None = None
+    counter: int | None = None
+    sample_time_fine: int | None = None
+    quat: np.ndarray | None = None
+    acc: np.ndarray | None = None
+    gyro: np.ndarray | None = None
+    mag: np.ndarray | None = None
+    status: int | None = None
+
+    @property
+    def sensor(self) -> int:
+        """The tracker id: the DeviceId item when sent (Awinda style), else the bus id."""
+        return self.device_id if self.device_id is not None else self.bid
+
+
+# ----------------------------------------------------------------------------- value codecs
+
+_SCALE_1220 = 1.0 / (1 << 20)
+_SCALE_1632 = 1.0 / (1 << 32)
+
+
+def _value_reader(n: int, prec: int):
+    """A function (buf, offset) -> tuple of n floats for one precision."""
+    if prec == 0:
+        return struct.Struct(f">{n}f").unpack_from
+    if prec == 3:
+        return struct.Struct(f">{n}d").unpack_from
+    if prec == 1:
+        unpack = struct.Struct(f">{n}i").unpack_from
+        return lambda buf, off: tuple(v * _SCALE_1220 for v in unpack(buf, off))
+    unpack = struct.Struct(">" + "Ih" * n).unpack_from  # 16.32: fraction u32, then integer i16
+
+    def read_1632(buf, off):
+        raw = unpack(buf, off)
+        return tuple((raw[i + 1] * 4294967296 + raw[i]) * _SCALE_1632 for i in range(0, 2 * n, 2))
+
+    return read_1632
+
+
+def _pack_values(values: Iterable[float], prec: int) -> bytes:
+    vals = [float(v) for v in values]
+    n = len(vals)
+    if prec == 0:
+        return struct.pack(f">{n}f", *vals)
+    if prec == 3:
+        return struct.pack(f">{n}d", *vals)
+    if prec == 1:
+        ints = [round(v * (1 << 20)) for v in vals]
+        if any(not -(1 << 31) <= i < (1 << 31) for i in ints):
+            raise ValueError("value out of range for fixed point 12.20")
+        return struct.pack(f">{n}i", *ints)
+    out = bytearray()
+    for v in vals:
+        raw = round(v * (1 << 32))
+        if not -(1 << 47) <= raw < (1 << 47):
+            raise ValueError("value out of range for fixed point 16.32")
+        out += struct.pack(">Ih", raw & 0xFFFFFFFF, raw >> 32)
+    return bytes(out)
+
+
+def _build_handlers() -> dict[int, tuple[str, int, Any]]:
+    """Full XDI (with precision/coordinate bits) -> (field, payload size, reader)."""
+    table: dict[int, tuple[str, int, Any]] = {
+        XDI_PACKET_COUNTER: ("counter", 2, struct.Struct(">H").unpack_from),
+        XDI_SAMPLE_TIME_FINE: ("sample_time_fine", 4, struct.Struct(">I").unpack_from),
+        XDI_STATUS_WORD: ("status", 4, struct.Struct(">I").unpack_from),
+        XDI_DEVICE_ID: ("device_id", 4, struct.Struct(">I").unpack_from),
+    }
+    for prec, size in _VALUE_SIZE.items():
+        for coord in COORDS.values():
+            table[XDI_QUATERNION | coord | prec] = ("quat", 4 * size, _value_reader(4, prec))
+            table[XDI_ROTATION_MATRIX | coord | prec] = ("matrix", 9 * size, _value_reader(9, prec))
+            table[XDI_EULER_ANGLES | coord | prec] = ("euler", 3 * size, _value_reader(3, prec))
+        # The coordinate bits do not apply to sensor-frame vectors; accept them anyway.
+        for coord in COORDS.values():
+            for xdi, name in ((XDI_ACCELERATION, "acc"), (XDI_RATE_OF_TURN, "gyro"),
+                              (XDI_MAGNETIC_FIELD, "mag")):
+                table[xdi | coord | prec] = (name, 3 * size, _value_reader(3, prec))
+    return table
+
+
+_HANDLERS = _build_handlers()
+_ITEM_HEADER = struct.Struct(">HB")
+
+
+def _orientation_to_world(kind: str, values: tuple, coord: int) -> tuple:
+    """Device orientation values -> world quaternion tuple (w, x, y, z)."""
+    if kind == "quat":
+        q = values
+    else:
+        if kind == "matrix":
+            m = np.array(values, dtype=np.float64).reshape(3, 3).T  # column-major on the wire
+        else:
+            roll, pitch, yaw = np.radians(values)
+            m = euler_to_matrix(np.array([yaw, pitch, roll]), "ZYX")
+        q = tuple(matrix_to_quat(m).tolist())
+    return _qmul(FRAME_TO_WORLD[coord], q)
+
+
+def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, int] | None = None
+                   ) -> XbusSample:
+    """Decode one MTData2 payload into an XbusSample.
+
+    Unknown XDIs are skipped by their size (counted in ``counters['unknown_xdi']``). Raises
+    FormatError on a truncated item, a known XDI with the wrong size, or a non-unit orientation.
+    """
+    sample = XbusSample(bid=bid)
+    n = len(payload)
+    i = 0
+    orient = None
+    while i < n:
+        if i + 3 > n:
+            raise FormatError("truncated MTData2 item header")
+        xdi, size = _ITEM_HEADER.unpack_from(payload, i)
+        i += 3
+        end = i + size
+        if end > n:
+            raise FormatError(f"MTData2 item 0x{xdi:04X} overruns the payload")
+        handler = _HANDLERS.get(xdi)
+        if handler is None:
+            if counters is not None:
+                counters["unknown_xdi"] = counters.get("unknown_xdi", 0) + 1
+        else:
+            field, expected, read = handler
+            if size != expected:
+                raise FormatError(f"MTData2 item 0x{xdi:04X} has {size} bytes, expected {expected}")
+            values = read(payload, i)
+            if field in ("quat", "matrix", "euler"):
+                orient = (field, values, xdi & 0x000C)
+            elif field in ("acc", "gyro", "mag"):
+                setattr(sample, field, np.array(values, dtype=np.float64))
+            else:
+                setattr(sample, field, values[0])
+        i = end
+    if orient is not None:
+        q = _orientation_to_world(*orient)
+        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        if not 0.9 < norm < 1.1:  # also rejects NaN: random bytes posing as a frame
+            raise FormatError(f"MTData2 orientation is not a rotation (norm {norm:.3g})")
+        sample.quat = np.array((q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm))
+    return sample
+
+
+def encode_mtdata2(
+    *,
+    quat: Iterable[float] | None = None,
+    counter: int | None = None,
+    sample_time_fine: int | None = None,
+    acc: Iterable[float] | None = None,
+    gyro: Iterable[float] | None = None,
+    mag: Iterable[float] | None = None,
+    status: int | None = None,
+    device_id: int | None = None,
+    orientation: str = "quat",
+    precision: str = "float32",
+    coord: str = "enu",
+) -> bytes:
+    """MTData2 payload (the DATA of a MID 0x36 message), symmetric with ``decode_mtdata2``.
+
+    quat: (w, x, y, z) sensor-to-world in the livecap world; it is converted to the device frame
+    ``coord`` and sent as ``orientation`` ("quat" | "matrix" | "euler") in ``precision``.
+    """
+    prec = PRECISIONS[precision]
+    cbits = COORDS[coord]
+    out = bytearray()
+
+    def item(xdi: int, data: bytes) -> None:
+        out.extend(_ITEM_HEADER.pack(xdi, len(data)))
+        out.extend(data)
+
+    if counter is not None:
+        item(XDI_PACKET_COUNTER, struct.pack(">H", counter & 0xFFFF))
+    if sample_time_fine is not None:
+        item(XDI_SAMPLE_TIME_FINE, struct.pack(">I", sample_time_fine & 0xFFFFFFFF))
+    if quat is not None:
+        qw = tuple(float(v) for v in quat)
+        qd = _qmul(_qconj(FRAME_TO_WORLD[cbits]), qw)
+        if orientation == "quat":
+            values: Iterable[float] = qd
+        elif orientation == "matrix":
+            values = quat_to_matrix(np.array(qd)).T.reshape(9)
+        elif orientation == "euler":
+            yaw, pitch, roll = matrix_to_euler(quat_to_matrix(np.array(qd)), "ZYX")
+            values = np.degrees([roll, pitch, yaw])
+        else:
+            raise ValueError(f"unknown orientation {orientation!r}; expected {list(ORIENTATIONS)}")
+        item(ORIENTATIONS[orientation] | cbits | prec, _pack_values(values, prec))
+    for xdi, vec in ((XDI_ACCELERATION, acc), (XDI_RATE_OF_TURN, gyro), (XDI_MAGNETIC_FIELD, mag)):
+        if vec is not None:
+            item(xdi | prec, _pack_values(vec, prec))
+    if status is not None:
+        item(XDI_STATUS_WORD, struct.pack(">I", status & 0xFFFFFFFF))
+    if device_id is not None:
+        item(XDI_DEVICE_ID, struct.pack(">I", device_id & 0xFFFFFFFF))
+    return bytes(out)
+
+
+def output_configuration(items: Iterable[tuple[int, int]]) -> bytes:
+    """SetOutputConfiguration payload from (full XDI, frequency Hz or 0xFFFF) pairs."""
+    return b"".join(struct.pack(">HH", xdi, freq) for xdi, freq in items)
+
+
+def parse_output_configuration(data: bytes) -> list[tuple[int, int]]:
+    """Inverse of ``output_configuration``; raises FormatError on a ragged payload."""
+    if len(data) % 4:
+        raise FormatError("output configuration payload is not a list of (XDI, frequency)")
+    return [struct.unpack_from(">HH", data, i) for i in range(0, len(data), 4)]
+
+
+# ----------------------------------------------------------------------------- parser
+
+# Non-data messages we accept, with their allowed payload lengths (None: any). A checksum-valid
+# frame with another MID is most likely garbage that summed to zero, so the parser resyncs past
+# its first byte instead of swallowing the bytes (which may hold real frames).
+_KNOWN_MIDS: dict[int, Any] = {
+    MID_REQ_DID: (0,), MID_DEVICE_ID: (4, 8), MID_GOTO_MEASUREMENT: (0,),
+    MID_GOTO_MEASUREMENT_ACK: (0,), MID_GOTO_CONFIG: (0,), MID_GOTO_CONFIG_ACK: (0,),
+    MID_WAKEUP: (0,), MID_WAKEUP_ACK: (0,), MID_RESET: (0,), MID_RESET_ACK: (0,),
+    MID_ERROR: None, MID_SET_OUTPUT_CONFIGURATION: None, MID_SET_OUTPUT_CONFIGURATION_ACK: None,
+}
+
+
+class XbusParser:
+    """Incremental Xbus decoder: ``feed(bytes) -> [XbusSample]``, never raises.
+
+    Resynchronises on the 0xFA preamble after garbage; a frame that fails its checksum, length
+    or content checks costs one byte of resync, so an intact frame right after garbage is still
+    found. The internal buffer never holds more than one maximal frame between calls. Non-data
+    messages go to ``messages`` (a bounded deque). Counts in ``counters``.
+    """
+
+    def __init__(self, max_messages: int = 64):
+        self._buf = bytearray()
+        self.messages: deque[XbusMessage] = deque(maxlen=max_messages)
+        self.counters: dict[str, int] = {
+            "frames": 0, "samples": 0, "bad_checksum": 0, "bad_length": 0, "bad_payload": 0,
+            "unknown_mid": 0, "skipped_bytes": 0, "unknown_xdi": 0,
+        }
+
+    def feed(self, data: bytes) -> list[XbusSample]:
+        buf = self._buf
+        buf += data
+        n = len(buf)
+        c = self.counters
+        out: list[XbusSample] = []
+        pos = 0
+        while True:
+            start = buf.find(0xFA, pos)
+            if start < 0:
+                c["skipped_bytes"] += n - pos
+                pos = n
+                break
+            c["skipped_bytes"] += start - pos
+            pos = start
+            if n - start < 5:
+                break
+            length = buf[start + 3]
+            head = 4
+            if length == 0xFF:
+                if n - start < 7:
+                    break
+                length = (buf[start + 4] << 8) | buf[start + 5]
+                head = 6
+                if length > MAX_DATA_LEN:
+                    c["bad_length"] += 1
+                    c["skipped_bytes"] += 1
+                    pos = start + 1
+                    continue
+            end = start + head + length + 1
+            if end > n:
+                break
+            if sum(buf[start + 1:end]) & 0xFF:
+                c["bad_checksum"] += 1
+                c["skipped_bytes"] += 1
+                pos = start + 1
+                continue
+            mid = buf[start + 2]
+            if mid == MID_MTDATA2:
+                try:
+                    sample = decode_mtdata2(bytes(buf[start + head:end - 1]), buf[start + 1], c)
+                except (ValueError, struct.error, OverflowError):
+                    c["bad_payload"] += 1
+                    c["skipped_bytes"] += 1
+                    pos = start + 1
+                    continue
+                out.append(sample)
+            else:
+                allowed = _KNOWN_MIDS.get(mid, ())
+                if mid not in _KNOWN_MIDS or (allowed is not None and length not in allowed):
+                    c["unknown_mid"] += 1
+                    c["skipped_bytes"] += 1
+                    pos = start + 1
+                    continue
+                self.messages.append(XbusMessage(buf[start + 1], mid, bytes(buf[start + head:end - 1])))
+            c["frames"] += 1
+            pos = end
+        del buf[:pos]
+        c["samples"] += len(out)
+        return out
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held back waiting for the rest of a frame."""
+        return len(self._buf)
+
+
+# ----------------------------------------------------------------------------- configuration
+
+
+class SerialLike(Protocol):
+    def write(self, data: bytes) -> int | None: ...
+    def read(self, size: int = 1) -> bytes: ...
+
+
+class XbusConfigurator:
+    """Sends configuration commands to an Xsens device and waits for their acknowledgements.
+
+    ``port`` is anything with ``write(bytes)`` and ``read(n)`` that returns after its own short
+    timeout (a pyserial port opened with ``timeout=0.05``, say). Every command waits at most
+    ``timeout`` seconds for MID + 1; an Error message (0x42) or the timeout raise DeviceError.
+    """
+
+    def __init__(self, port: SerialLike, *, timeout: float = 1.0, bid: int = BID_MASTER):
+        self.port = port
+        self.timeout = timeout
+        self.bid = bid
+        self.parser = XbusParser()
+
+    def request(self, mid: int, data: bytes = b"") -> XbusMessage:
+        """Send one command and return its acknowledgement."""
+        self.parser.messages.clear()
+        self.port.write(encode_message(self.bid, mid, data))
+        deadline = time.monotonic() + self.timeout
+        while True:
+            while self.parser.messages:
+                msg = self.parser.messages.popleft()
+                if msg.mid == mid + 1:
+                    return msg
+                if msg.mid == MID_ERROR:
+                    code = msg.data[0] if msg.data else -1
+                    raise DeviceError(f"Xsens device refused message 0x{mid:02X} (error code {code})")
+            if time.monotonic() > deadline:
+                raise DeviceError(f"no acknowledgement for Xsens message 0x{mid:02X} "
+                                  f"within {self.timeout:.2f} s")
+            chunk = self.port.read(256)
+            if chunk:
+                self.parser.feed(chunk)  # data samples still streaming in are dropped here
+
+    def go_to_config(self) -> None:
+        self.request(MID_GOTO_CONFIG)
+
+    def go_to_measurement(self) -> None:
+        self.request(MID_GOTO_MEASUREMENT)
+
+    def set_output_configuration(self, items: Iterable[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Send (XDI, frequency) pairs; returns the configuration the device acknowledged."""
+        ack = self.request(MID_SET_OUTPUT_CONFIGURATION, output_configuration(items))
+        return parse_output_configuration(ack.data)
+
+    def configure(self, rate_hz: int = 100, *, orientation: str = "quat", precision: str = "float32",
+                  coord: str = "enu", extras: Iterable[str] = ()) -> list[tuple[int, int]]:
+        """GoToConfig, output orientation + packet counter + SampleTimeFine (+ extras among
+        "acc", "gyro", "mag") at ``rate_hz``, then GoToMeasurement. Returns the acked config."""
+        prec = PRECISIONS[precision]
+        items = [(XDI_PACKET_COUNTER, FREQ_EVERY_PACKET), (XDI_SAMPLE_TIME_FINE, FREQ_EVERY_PACKET),
+                 (ORIENTATIONS[orientation] | COORDS[coord] | prec, rate_hz)]
+        extra_xdi = {"acc": XDI_ACCELERATION, "gyro": XDI_RATE_OF_TURN, "mag": XDI_MAGNETIC_FIELD}
+        items += [(extra_xdi[name] | prec, rate_hz) for name in extras]
+        self.go_to_config()
+        acked = self.set_output_configuration(items)
+        self.go_to_measurement()
+        return acked

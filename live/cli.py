@@ -1,0 +1,97 @@
+"""The ``livecap`` command line. Every user mistake ends in one line and a non-zero exit."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+from live import __version__
+from live.errors import LivecapError, UserInputError
+
+EXIT_USER_ERROR = 2
+
+
+def _add_replay_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--speed", default="max", help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="livecap", description="Open, ROS-free live human capture: depth cameras and "
+                                     "IMU suits -> 3D skeleton -> retargeted avatar, live.")
+    parser.add_argument("--version", action="version", version=f"livecap {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="replay the bundled session through the pipeline and write the results",
+                       description="Replay the bundled demo session through the whole pipeline; writes stats.json "
+                       "and the result files into --out.")
+    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
+    p.add_argument("--session", type=Path, default=None, help="another session to use instead of the bundled one")
+    _add_replay_options(p)
+
+    p = sub.add_parser("replay", help="replay a session or a depth PNG folder through the pipeline",
+                       description="Replay SESSION.mcap (or a folder of 16-bit depth PNGs with intrinsics.json) "
+                       "through the pipeline and write DIR/stats.json and the result files.")
+    p.add_argument("session", help="a .mcap session or a depth folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    _add_replay_options(p)
+
+    p = sub.add_parser("record", help="record sources into a session file",
+                       description="Record one or more sources (e.g. a camera and a suit) into an MCAP session.")
+    p.add_argument("--source", action="append", required=True, help="source string (repeatable): oak, oak:MXID, "
+                   "realsense, serial:PORT:xbus|lines[:baud], replay:S.mcap, folder:DIR, sim:CLIP.bvh")
+    p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("run", help="run the live pipeline on sources",
+                       description="Run the live pipeline on one or more sources (latest-frame mode: bounded latency).")
+    p.add_argument("--source", action="append", required=True, help="source string (repeatable), see `record`")
+    p.add_argument("--out", type=Path, default=Path("run_out"), help="folder for stats.json and results")
+    p.add_argument("--record", type=Path, default=None, help="also record the sources into this session file")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("export", help="export a session's streams as .npz files",
+                       description="Write one .npz per stream (gt.npz, depth_<s>.npz, serial_<d>.npz, imu_<d>.npz).")
+    p.add_argument("session", type=Path)
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+
+    p = sub.add_parser("info", help="describe a session file", description="Print a session's streams, "
+                       "message counts, duration and metadata.")
+    p.add_argument("session", type=Path)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
+                   description="List connected OAK devices, RealSense devices and serial ports.")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="livecap: %(message)s")
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USER_ERROR
+    from live import commands
+
+    try:
+        return int(getattr(commands, f"cmd_{args.command}")(args) or 0)
+    except LivecapError as exc:
+        print(f"livecap {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except FileNotFoundError as exc:
+        print(f"livecap {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print(f"livecap {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""One function per CLI command; each takes the parsed arguments and returns an exit code."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from live.app import DEMO_SESSION, count_trigger_frames, parse_speed, run_pipeline, write_stats
+from live.errors import UserInputError
+from live.results import ResultsWriter
+from live.stages import CloudStage
+
+
+def _replay_source(target: str, speed: float | None):
+    path = Path(target)
+    if path.is_dir():
+        from sim.depth_folder import DepthFolderSource
+
+        return DepthFolderSource(path, speed=speed)
+    if not path.exists():
+        raise UserInputError(f"no such session or folder: {path}")
+    from sim.replay import ReplaySource
+
+    return ReplaySource(path, speed=speed)
+
+
+def _replay(target: str, out: Path, speed: float | None, quiet: bool) -> dict:
+    source = _replay_source(target, speed)
+    total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
+    results = ResultsWriter(out)
+    stages = [CloudStage()]
+    stats = run_pipeline([source], stages, [results], mode="every", progress_total=total,
+                         progress=not quiet)
+    damage = getattr(source, "error", None)
+    stats["session_error"] = damage
+    stats["outputs"] = [p.name for p in results.written]
+    write_stats(out, stats)
+    if damage:
+        print(f"livecap: {damage}", file=sys.stderr)
+    return stats
+
+
+def _print_summary(stats: dict) -> None:
+    rows = [("frames", str(stats["frames"])), ("fps", f"{stats['fps']:.1f}")]
+    for name, st in stats["stages"].items():
+        lat = st["latency_ms"]
+        if lat.get("count"):
+            rows.append((f"{name} p50/p95 ms", f"{lat['p50']:.2f} / {lat['p95']:.2f}"))
+    e2e = stats["end_to_end"]["latency_ms"]
+    if e2e.get("count"):
+        rows.append(("end-to-end p50/p95 ms", f"{e2e['p50']:.2f} / {e2e['p95']:.2f}"))
+    width = max(len(k) for k, _ in rows)
+    for k, v in rows:
+        print(f"  {k:<{width}}  {v}")
+
+
+def cmd_demo(args) -> int:
+    session = args.session or DEMO_SESSION
+    if not Path(session).is_file():
+        raise UserInputError(f"the demo session is missing: {session} (regenerate it with `livecap synth`, see README)")
+    stats = _replay(str(session), args.out, parse_speed(args.speed), args.quiet)
+    print(f"livecap demo: replayed {Path(session).name}")
+    _print_summary(stats)
+    print(f"  wrote {args.out / 'stats.json'}" + "".join(f", {args.out / n}" for n in stats["outputs"]))
+    return 0
+
+
+def cmd_replay(args) -> int:
+    stats = _replay(args.session, args.out, parse_speed(args.speed), args.quiet)
+    if not args.quiet:
+        _print_summary(stats)
+    return 0
+
+
+def _open_sources(specs: list[str]):
+    from live.sources import open_source
+
+    return [open_source(s) for s in specs]
+
+
+def cmd_record(args) -> int:
+    sources = _open_sources(args.source)
+    stats = run_pipeline(sources, [], [], mode="latest", record=args.out, seconds=args.seconds,
+                         progress=not args.quiet)
+    print(f"livecap record: {stats['recorded_messages']} messages into {args.out}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    sources = _open_sources(args.source)
+    results = ResultsWriter(args.out)
+    stats = run_pipeline(sources, [CloudStage()], [results], mode="latest", record=args.record,
+                         seconds=args.seconds, progress=not args.quiet)
+    write_stats(args.out, stats)
+    _print_summary(stats)
+    return 0
+
+
+def cmd_export(args) -> int:
+    from live.export import export_session
+
+    written, damage = export_session(args.session, args.out)
+    for p in written:
+        print(p)
+    if damage:
+        print(f"livecap export: {damage}", file=sys.stderr)
+    return 0
+
+
+def cmd_info(args) -> int:
+    from live.session import SessionReader
+
+    reader = SessionReader(args.session)
+    counts: dict[str, int] = {}
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for stream, frame in reader.frames():
+        counts[stream.name] = counts.get(stream.name, 0) + 1
+        first.setdefault(stream.name, frame.t_ns)
+        last[stream.name] = frame.t_ns
+    info = reader.info
+    doc = {
+        "path": str(args.session), "livecap_version": info.version, "start_wall_time_ns": info.start_wall_time_ns,
+        "streams": [{"name": s.name, "kind": s.kind, "messages": counts.get(s.name, 0),
+                     "duration_s": round((last.get(s.name, 0) - first.get(s.name, 0)) / 1e9, 3), "meta": s.meta}
+                    for s in info.streams],
+        "extra": info.extra, "attachments": sorted(reader.attachments), "damage": reader.error,
+    }
+    if args.json:
+        print(json.dumps(doc, indent=2))
+        return 0
+    print(f"{args.session}: livecap {info.version or '?'} session")
+    for s in doc["streams"]:
+        print(f"  {s['kind']:<6} {s['name']:<12} {s['messages']:>7} messages  {s['duration_s']:8.2f} s")
+    if doc["attachments"]:
+        print(f"  attachments: {', '.join(doc['attachments'])}")
+    if reader.error:
+        print(f"  damaged: {reader.error}")
+    return 0
+
+
+def cmd_devices(args) -> int:
+    from drivers.discovery import format_device_list, list_devices
+
+    print(format_device_list(list_devices()))
+    return 0

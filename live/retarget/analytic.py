@@ -1,0 +1,249 @@
+"""Local joint rotations from joint positions, and rotation-copy retargeting between bodies.
+
+Every rest skeleton is in the canonical T-pose (../shared/CONVENTIONS.md), so a joint's rest
+global rotation is the identity and its rest bone directions are world directions. For each joint
+with children we find the global rotation G_j that takes its rest bone direction(s) to the
+observed one(s); local rotations are then L_j = G_parent^T G_j.
+
+* pelvis: frame from two directions, the hip line (left_hip - right_hip) and spine1 - pelvis.
+* spine3: frame from the collar line (left_collar - right_collar) and neck - spine3.
+* every other joint with one child: the shortest-arc swing of its bone, relative to its parent
+  (no twist of its own: spine1/spine2 twist is carried by spine3, the head follows the torso's
+  twist, feet follow the shin), except the limb roots:
+* hips and shoulders: the twist about the thigh / upper arm is taken from the plane of the limb
+  (hip-knee-ankle, shoulder-elbow-wrist) so that the knee / elbow is a hinge about its rest axis
+  (knee +x, left elbow -y, right elbow +y). When the limb is nearly straight (bend < ~5 deg) the
+  plane is undefined and the previous frame's twist is kept, blended in up to a bend of ~15 deg.
+* leaves (feet, head, wrists) have no children: their twist is not observable from positions,
+  they get the identity (they inherit their parent's frame).
+
+Forward kinematics of the result on the same rest skeleton reproduces the input joints exactly
+when the input came from that skeleton; twist that positions cannot see is not recovered.
+Batch computations run level by level of the tree on rotation matrices, so one frame costs a
+few dozen numpy calls (see benchmarks/bench_retarget.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from live.errors import UserInputError
+from live.retarget.ik import axis_angle_matrix, cross, normalize, rotation_between
+from live.rotations import matrix_to_quat
+from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+
+_J = JOINT_INDEX
+#: Limb chains whose middle joint is a hinge: (root, middle, end, rest hinge axis).
+LIMBS: tuple[tuple[int, int, int, tuple[float, float, float]], ...] = (
+    (_J["left_hip"], _J["left_knee"], _J["left_ankle"], (1.0, 0.0, 0.0)),
+    (_J["right_hip"], _J["right_knee"], _J["right_ankle"], (1.0, 0.0, 0.0)),
+    (_J["left_shoulder"], _J["left_elbow"], _J["left_wrist"], (0.0, -1.0, 0.0)),
+    (_J["right_shoulder"], _J["right_elbow"], _J["right_wrist"], (0.0, 1.0, 0.0)),
+)
+#: Bend angles (radians) between which the limb plane takes over from the previous twist.
+_LIMB_IDX = np.array([limb[:3] for limb in LIMBS], dtype=np.int64)
+_LIMB_OF = {int(limb[0]): k for k, limb in enumerate(LIMBS)}
+STRAIGHT_LO = np.deg2rad(5.0)
+STRAIGHT_HI = np.deg2rad(15.0)
+
+# Joints posed from a frame of two child directions: joint -> (a_from, a_to, b_from, b_to).
+_FRAMED = {
+    _J["pelvis"]: (_J["right_hip"], _J["left_hip"], _J["pelvis"], _J["spine1"]),
+    _J["spine3"]: (_J["right_collar"], _J["left_collar"], _J["spine3"], _J["neck"]),
+}
+
+
+def _depths() -> np.ndarray:
+    d = np.zeros(NUM_JOINTS, dtype=np.int64)
+    for j in range(1, NUM_JOINTS):
+        d[j] = d[PARENTS[j]] + 1
+    return d
+
+
+_DEPTH = _depths()
+#: Joint indices per tree level (parents always in an earlier level).
+LEVELS: tuple[np.ndarray, ...] = tuple(np.flatnonzero(_DEPTH == k) for k in range(_DEPTH.max() + 1))
+
+
+def frame_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Orthonormal frames (..., 3, 3) with columns (a, b orthogonalised, a x b) from (..., 3)."""
+    e1 = normalize(a)
+    e3 = normalize(cross(e1, b))
+    e2 = cross(e3, e1)
+    return np.stack([e1, e2, e3], axis=-1)
+
+
+@dataclass(frozen=True)
+class RestInfo:
+    """Per-rest-skeleton constants of the solver (computed once per body)."""
+
+    rest_joints: np.ndarray  # (22, 3)
+    offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
+    frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
+    swing: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]  # per level: joints, children, rest dirs
+    limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
+    limb_hinges: np.ndarray  # (4, 3) rest hinge axis, orthogonal to the upper bone
+
+    @classmethod
+    def of(cls, rest_joints: np.ndarray) -> RestInfo:
+        rest = np.asarray(rest_joints, dtype=np.float64)
+        if rest.shape != (NUM_JOINTS, 3):
+            raise UserInputError(f"rest joints must be (22, 3), got {rest.shape}")
+        if pelvis_height(rest) <= 0:
+            raise UserInputError("rest skeleton pelvis must be above the floor (y > 0)")
+        frames = {j: frame_matrix(rest[a1] - rest[a0], rest[b1] - rest[b0]) for j, (a0, a1, b0, b1) in _FRAMED.items()}
+        swing = []
+        for level in LEVELS:
+            js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
+            cs = np.array([CHILDREN[j][0] for j in js], dtype=np.int64)
+            swing.append((js, cs, normalize(rest[cs] - rest[js]) if len(js) else np.zeros((0, 3))))
+        dirs = normalize(np.array([rest[m] - rest[r] for r, m, _, _ in LIMBS]))
+        hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
+        hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
+        return cls(rest, rest_offsets(rest), frames, tuple(swing), dirs, hinges)
+
+
+def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray):
+    """Twist angles about the limbs' upper bones that make their middle joints hinges.
+
+    joints (N, 22, 3); swing_glob (N, K, 3, 3): the upper bones' global rotations without twist;
+    ks (K,) limb numbers. Returns (angle (N, K), weight (N, K) in [0, 1], 0 where the limb is too
+    straight for its plane to be known).
+    """
+    r, m, e = (_LIMB_IDX[ks, i] for i in range(3))
+    upper = joints[:, m] - joints[:, r]
+    lower = joints[:, e] - joints[:, m]
+    normal = cross(upper, lower)
+    bend = np.arctan2(np.linalg.norm(normal, axis=-1), np.sum(upper * lower, axis=-1))
+    n_loc = np.einsum("nkji,nkj->nki", swing_glob, normalize(normal))
+    h0, d0 = info.limb_hinges[ks], info.limb_dirs[ks]
+    angle = np.arctan2(np.sum(cross(h0, n_loc) * d0, axis=-1), np.sum(n_loc * h0, axis=-1))
+    weight = np.clip((bend - STRAIGHT_LO) / (STRAIGHT_HI - STRAIGHT_LO), 0.0, 1.0)
+    return angle, weight
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def solve_globals(
+    joints: np.ndarray, info: RestInfo, twist: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Global and local rotation matrices of posed joints (the core of local_rotations_from_joints).
+
+    joints (N, 22, 3) float64; twist (4,) the limb twists of the frame before (online state).
+    Returns (global (N, 22, 3, 3), local (N, 22, 3, 3), twist (4,) of the last frame).
+    """
+    n = joints.shape[0]
+    glob = np.empty((n, NUM_JOINTS, 3, 3))
+    loc = np.empty((n, NUM_JOINTS, 3, 3))
+    prev = np.zeros(len(LIMBS)) if twist is None else np.asarray(twist, dtype=np.float64).copy()
+    for level, (js, cs, d0) in zip(LEVELS, info.swing):
+        for j in level:
+            if j in _FRAMED:
+                a0, a1, b0, b1 = _FRAMED[j]
+                f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
+                glob[:, j] = f @ info.frames[j].T
+            elif not CHILDREN[j]:
+                glob[:, j] = glob[:, PARENTS[j]]
+        if len(js):
+            gp = glob[:, PARENTS[js]]
+            d = joints[:, cs] - joints[:, js]
+            d_loc = np.einsum("nkji,nkj->nki", gp, d)
+            local = rotation_between(np.broadcast_to(d0, d_loc.shape), d_loc)
+            g = gp @ local
+            ks = np.array([_LIMB_OF.get(int(j), -1) for j in js])
+            if np.any(ks >= 0):
+                sel = np.flatnonzero(ks >= 0)
+                angle, weight = _limb_twist(joints, g[:, sel], info, ks[sel])
+                # Sequential filter: the plane's twist where the limb is bent, the previous
+                # frame's where it is straight (so batch and frame-by-frame agree).
+                out = np.empty_like(angle)
+                p = prev[ks[sel]]
+                for t in range(n):
+                    p = _wrap(p + weight[t] * _wrap(angle[t] - p))
+                    out[t] = p
+                prev[ks[sel]] = p
+                twist_m = axis_angle_matrix(np.broadcast_to(info.limb_dirs[ks[sel]], out.shape + (3,)), out)
+                g[:, sel] = g[:, sel] @ twist_m
+            glob[:, js] = g
+    loc[:, 0] = glob[:, 0]
+    loc[:, 1:] = np.swapaxes(glob[:, PARENTS[1:]], -1, -2) @ glob[:, 1:]
+    return glob, loc, prev
+
+
+def fk_matrices(loc: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward kinematics on rotation matrices, level by level (same result as live.kinematics).
+
+    loc (N, 22, 3, 3) local rotations; root (N, 3); offsets (22, 3) rest offsets from the parent.
+    Returns (global (N, 22, 3, 3), joints (N, 22, 3)).
+    """
+    n = loc.shape[0]
+    glob = np.empty_like(loc)
+    pos = np.empty((n, NUM_JOINTS, 3))
+    glob[:, 0] = loc[:, 0]
+    pos[:, 0] = root
+    for level in LEVELS[1:]:
+        p = PARENTS[level]
+        glob[:, level] = glob[:, p] @ loc[:, level]
+        pos[:, level] = pos[:, p] + np.einsum("nkij,kj->nki", glob[:, p], offsets[level])
+    return glob, pos
+
+
+def local_rotations_from_joints(joints: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
+    """Local rotations relative to the canonical T-pose from world joint positions.
+
+    joints: T x 22 x 3 (any leading shape) world metres; rest_joints: 22 x 3 T-pose of the same
+    body. Returns T x 22 x 4 quaternions (w, x, y, z). The root position is joints[..., 0, :].
+    """
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.shape[-2:] != (NUM_JOINTS, 3):
+        raise UserInputError(f"joints must be (..., 22, 3), got {joints.shape}")
+    lead = joints.shape[:-2]
+    _, loc, _ = solve_globals(joints.reshape(-1, NUM_JOINTS, 3), RestInfo.of(rest_joints))
+    return matrix_to_quat(loc).reshape(lead + (NUM_JOINTS, 4))
+
+
+def leg_ratio(source_rest: np.ndarray, target_rest: np.ndarray) -> float:
+    """Target rest pelvis height over the source's: the root-translation scale between bodies."""
+    return pelvis_height(target_rest) / pelvis_height(source_rest)
+
+
+def retarget(
+    rotations: np.ndarray, root: np.ndarray, source_rest: np.ndarray, target_rest: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move a motion from body A (source_rest) to body B (target_rest), by convention.
+
+    rotations T x 22 x 4 are copied (they mean the same pose on any canonical body); root T x 3
+    is scaled by the leg-length ratio about the world origin, horizontally and vertically, so the
+    stride and the pelvis height fit the new legs. Returns (rotations, root_target).
+    """
+    ratio = leg_ratio(source_rest, target_rest)
+    return np.array(rotations, dtype=np.float64, copy=True), np.asarray(root, dtype=np.float64) * ratio
+
+
+def estimate_rest_joints(joints: np.ndarray, template: np.ndarray | None = None) -> np.ndarray:
+    """A T-pose rest skeleton (22 x 3) for a performer seen only as posed joints (T x 22 x 3).
+
+    Bone lengths are the per-bone medians over frames; bone directions come from ``template``
+    (default live.skeleton.default_rest_joints()). The feet are put on the floor at the
+    template's foot height, scaled by the leg length found.
+    """
+    from live.skeleton import default_rest_joints
+
+    joints = np.asarray(joints, dtype=np.float64).reshape(-1, NUM_JOINTS, 3)
+    tpl = np.asarray(default_rest_joints() if template is None else template, dtype=np.float64)
+    tpl_off = rest_offsets(tpl)
+    rest = np.zeros((NUM_JOINTS, 3))
+    for p, c in BONES:
+        length = np.median(np.linalg.norm(joints[:, c] - joints[:, p], axis=-1))
+        rest[c] = rest[p] + normalize(tpl_off[c]) * length
+    feet = [_J["left_ankle"], _J["right_ankle"], _J["left_foot"], _J["right_foot"]]
+    drop = -rest[feet, 1].min()
+    # The template's lowest foot joint sits above the floor by a fraction of its leg length.
+    tpl_clear = tpl[feet, 1].min() / tpl[0, 1]
+    rest[:, 1] += drop / (1.0 - tpl_clear)
+    return rest.astype(np.float32)
+

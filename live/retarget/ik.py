@@ -1,0 +1,114 @@
+"""Two-bone limb IK and the small rotation-matrix helpers the retargeter runs on.
+
+Matrices are (..., 3, 3) acting on column vectors (v' = R v), like live/rotations.py. The
+retargeter works on matrices rather than quaternions on its hot path because a batched matmul is
+one numpy call where a quaternion product is a dozen; results are converted to quaternions once.
+All functions are pure and take any leading batch shape.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-12
+
+
+def normalize(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> unit vectors (zero vectors stay zero)."""
+    n = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))
+    return v / np.maximum(n, _EPS)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of (..., 3) arrays (np.cross costs several times more on small arrays)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = np.zeros_like(x)
+    return np.stack([o, -z, y, z, o, -x, -y, x, o], axis=-1).reshape(v.shape[:-1] + (3, 3))
+
+
+def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Unit axes (..., 3) and angles (...) in radians -> rotation matrices (..., 3, 3) (Rodrigues)."""
+    k = skew(axis)
+    a = np.asarray(angle)[..., None, None]
+    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * (k @ k)
+
+
+def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Shortest-arc rotation matrices (..., 3, 3) taking direction u to direction v (any lengths).
+
+    Same rotation as ``live.rotations.quat_between``; opposite directions turn by pi about an axis
+    orthogonal to u.
+    """
+    u = normalize(np.asarray(u, dtype=np.float64))
+    v = normalize(np.asarray(v, dtype=np.float64))
+    c = cross(u, v)
+    d = np.sum(u * v, axis=-1)
+    k = skew(c)
+    opposite = d < -1.0 + 1e-9
+    scale = 1.0 / np.where(opposite, 1.0, 1.0 + d)
+    r = np.eye(3) + k + (k @ k) * scale[..., None, None]
+    if np.any(opposite):
+        ortho = cross(u, np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(ortho, axis=-1) < 1e-6
+        ortho = normalize(np.where(small[..., None], cross(u, np.array([0.0, 1.0, 0.0])), ortho))
+        flip = 2.0 * ortho[..., :, None] * ortho[..., None, :] - np.eye(3)
+        r = np.where(opposite[..., None, None], flip, r)
+    return r
+
+
+def two_bone_ik(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    target: np.ndarray,
+    bend_hint: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """World-space corrections that bring the end c of the chain a-b-c to ``target``.
+
+    a, b, c: (..., 3) root, middle and end joint positions (hip, knee, ankle); target (..., 3);
+    bend_hint (..., 3): the rotation axis along which the middle joint flexes, used when the limb
+    is straight and its own plane is undefined (for a knee, the thigh's world x axis).
+    Returns (delta_upper, delta_lower), each (..., 3, 3): the new global rotation of the upper
+    bone is ``delta_upper @ G_a`` and of the lower bone ``delta_lower @ G_b``. Bone lengths are
+    kept; an unreachable target leaves the limb pointing at it, fully stretched (minus 1e-4 of
+    its length, so that the knee keeps a defined plane) or fully folded.
+    """
+    ab = b - a
+    cb = c - b
+    ac = c - a
+    l_ab = np.linalg.norm(ab, axis=-1)
+    l_cb = np.linalg.norm(cb, axis=-1)
+    l_at = np.linalg.norm(target - a, axis=-1)
+    reach = l_ab + l_cb
+    l_at = np.clip(l_at, np.abs(l_ab - l_cb) + 1e-4 * reach, reach * (1.0 - 1e-4))
+
+    def angle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.arccos(np.clip(np.sum(normalize(x) * normalize(y), axis=-1), -1.0, 1.0))
+
+    # Interior angles now and wanted (law of cosines); the bend plane's normal rotates both.
+    ac_ab_0 = angle(ac, ab)
+    ba_bc_0 = angle(-ab, cb)
+    ac_ab_1 = np.arccos(np.clip((l_cb**2 - l_ab**2 - l_at**2) / (-2.0 * l_ab * l_at), -1.0, 1.0))
+    ba_bc_1 = np.arccos(np.clip((l_at**2 - l_ab**2 - l_cb**2) / (-2.0 * l_ab * l_cb), -1.0, 1.0))
+    plane = cross(ac, ab)
+    plane_n = np.linalg.norm(plane, axis=-1)
+    # A straight limb has no plane: bend about the hinge hint (its sign chosen to match
+    # cross(ac, ab) of a naturally flexed limb).
+    straight = plane_n < 1e-6 * np.maximum(l_ab * (l_ab + l_cb), _EPS)
+    hint = np.asarray(bend_hint, dtype=np.float64)
+    hint = hint - np.sum(hint * ab, axis=-1, keepdims=True) * ab / np.maximum(l_ab**2, _EPS)[..., None]
+    axis0 = np.where(straight[..., None], -normalize(hint), plane / np.maximum(plane_n, _EPS)[..., None])
+    r0 = axis_angle_matrix(axis0, ac_ab_1 - ac_ab_0)
+    r1 = axis_angle_matrix(axis0, ba_bc_1 - ba_bc_0)
+    # The two bends keep the end on the old a-c line (up to rounding); swing it onto the target.
+    end = ab + np.einsum("...ij,...j->...i", r1, cb)
+    r2 = rotation_between(np.einsum("...ij,...j->...i", r0, end), target - a)
+    upper = r2 @ r0
+    return upper, upper @ r1

@@ -1,0 +1,1 @@
+"""livecap models package."""

@@ -1,0 +1,1 @@
+"""livecap sim package."""

@@ -1,0 +1,383 @@
+"""A virtual depth camera: ray-casts a posed body mesh in a room and adds stereo sensor noise.
+
+Rays are cast with open3d's ``RaycastingScene`` (Embree). The camera does not move, so its rays
+are built once, and the static room is cast once per room and cached; each frame only builds a
+scene of the body and casts the rays of the body's bounding box in the image, then keeps the
+nearer of body and room per pixel (the first hit over a union is the nearest of the hits).
+
+Output follows the DepthFrame convention: (H, W) uint16 millimetres, 0 = no data, OpenCV camera
+frame, pixel (u, v) looks along K^-1 (u, v, 1) as ``live.depth.depth_to_points`` assumes.
+
+Noise model (a stereo or structured-light sensor measures disparity d = f b / z, in pixels):
+Gaussian disparity noise (so depth error grows as z^2 / (f b)), disparity quantisation to
+1 / 2^subpixel_bits px, invalid pixels at depth edges, in the occlusion shadow that the second
+view cannot see, at grazing angles, random dropouts, and outside [min_range, max_range].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from live.depth import intrinsics_matrix
+from live.errors import UserInputError
+from sim.room import Room
+
+_o3c = o3d.core
+_TILE = 8  # pixels per side of the tiles used to pick which rays may hit the body
+
+
+@dataclass(frozen=True)
+class CameraPreset:
+    """A depth sensor's image size, pinhole intrinsics (pixels), stereo baseline and range.
+
+    disparity_sigma_px is the sensor's typical random disparity error (1 sigma, pixels at this
+    resolution); subpixel_bits the fractional bits of its disparity output."""
+
+    name: str
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    min_range_m: float
+    max_range_m: float
+    fps: float
+    subpixel_bits: int
+    disparity_sigma_px: float = 0.1
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        return intrinsics_matrix(self.fx, self.fy, self.cx, self.cy)
+
+
+# Where the numbers come from (see docs/virtual_camera.md):
+# - oak-d: OV9282 stereo pair, 7.5 cm baseline; fx = 441.25 px is Luxonis's own 400P example
+#   (rectified, HFOV ~72 deg). Min range: RVC2 searches disparities 0..95 px -> f b / 95 = 0.35 m.
+#   Subpixel default 3 fractional bits. sigma ~0.15 px matches "< 2 % error below 4 m".
+# - oak-d-pro: same OV9282 pair and baseline; fx from the spec-sheet HFOV of 80 deg at 640 px
+#   (320 / tan 40 deg = 381.4 px); the IR dot projector makes matching easier -> lower sigma.
+# - kinect-v1: 640x480 IR camera, fx = fy = 580 px and 7.5 cm projector-camera baseline,
+#   disparity in 1/8 px, 0.5-5 m range, error ~4 cm at 5 m (Khoshelham & Elberink 2012).
+PRESETS: dict[str, CameraPreset] = {
+    p.name: p
+    for p in (
+        CameraPreset("oak-d", 640, 400, 441.25, 441.25, 319.5, 199.5, 0.075, 0.35, 10.0, 30.0, 3,
+                     0.15),
+        CameraPreset("oak-d-pro", 640, 400, 381.4, 381.4, 319.5, 199.5, 0.075, 0.30, 10.0, 30.0,
+                     3, 0.1),
+        CameraPreset("kinect-v1", 640, 480, 580.0, 580.0, 319.5, 239.5, 0.075, 0.5, 5.0, 30.0, 3,
+                     0.07),
+    )
+}
+
+
+def get_preset(name: str | CameraPreset) -> CameraPreset:
+    """A preset by name (or the preset itself)."""
+    if isinstance(name, CameraPreset):
+        return name
+    if name not in PRESETS:
+        raise UserInputError(f"unknown camera preset {name!r}; choose from {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """What makes a rendered depth image look measured. ``NoiseModel()`` is a realistic default;
+    ``NoiseModel.none()`` gives ideal depth (only millimetre rounding and the range limits).
+
+    disparity_sigma_px: Gaussian disparity noise, None = the preset's typical value.
+    subpixel: quantise disparity to 1 / 2^subpixel_bits px (else to whole pixels).
+    edge_jump_px: a neighbour whose disparity differs by more than this marks a depth edge;
+      edge_width_px pixels around it become 0 (stereo matching fails across edges). 0 = off.
+    occlusion: drop pixels the second view (other camera / projector) cannot see.
+    grazing_deg: drop pixels whose surface normal is more than this from the ray. None = off.
+    dropout: probability that a pixel drops out at random.
+    range_limits: drop depths outside [min_range_m, max_range_m] of the preset.
+    """
+
+    disparity_sigma_px: float | None = None
+    quantize: bool = True
+    subpixel: bool = True
+    edge_jump_px: float = 1.0
+    edge_width_px: int = 1
+    occlusion: bool = True
+    grazing_deg: float | None = 80.0
+    dropout: float = 0.01
+    range_limits: bool = True
+
+    @classmethod
+    def none(cls) -> NoiseModel:
+        return cls(disparity_sigma_px=0.0, quantize=False, edge_jump_px=0.0, occlusion=False,
+                   grazing_deg=None, dropout=0.0)
+
+
+@dataclass
+class _StaticView:
+    """What the camera sees of the room: camera z (inf = nothing), |cos| of the incidence angle."""
+
+    z: np.ndarray
+    cos: np.ndarray
+
+
+class VirtualDepthCamera:
+    """A fixed depth camera in the world. camera_to_world (4, 4) maps OpenCV camera coordinates
+    (+X right, +Y down, +Z forward) to world coordinates (+Y up), metres."""
+
+    def __init__(self, preset: str | CameraPreset, camera_to_world: np.ndarray,
+                 noise: NoiseModel | None = None, seed: int = 0):
+        self.preset = get_preset(preset)
+        m = np.asarray(camera_to_world, dtype=np.float64)
+        if m.shape != (4, 4):
+            raise UserInputError(f"camera_to_world must be 4x4, got {m.shape}")
+        self._c2w = m.copy()
+        self._c2w.setflags(write=False)
+        self.noise = NoiseModel() if noise is None else noise
+        self.rng = np.random.default_rng(seed)
+        p = self.preset
+        u, v = np.meshgrid(np.arange(p.width, dtype=np.float64), np.arange(p.height, dtype=np.float64))
+        # Direction with camera-frame z = 1, so t_hit is directly the depth z.
+        d_cam = np.stack([(u - p.cx) / p.fx, (v - p.cy) / p.fy, np.ones_like(u)], axis=-1)
+        d_world = d_cam @ m[:3, :3].T
+        self._rays = np.concatenate(
+            [np.broadcast_to(m[:3, 3], d_world.shape), d_world], axis=-1
+        ).astype(np.float32)
+        self._inv_len = (1.0 / np.linalg.norm(d_world, axis=-1)).astype(np.float32)
+        self._static: dict[Room, _StaticView] = {}
+        self._tile_v = np.arange(p.height) // _TILE
+        self._tile_u = np.arange(p.width) // _TILE
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """(3, 3) float64 pinhole matrix."""
+        return self.preset.intrinsics
+
+    @property
+    def camera_to_world(self) -> np.ndarray:
+        """(4, 4) float64, read-only."""
+        return self._c2w
+
+    # ---------------------------------------------------------------- rendering
+    def render(self, vertices: np.ndarray, faces: np.ndarray, room: bool | Room = True) -> np.ndarray:
+        """Posed mesh (V, 3) float32 world + faces (F, 3) int32 -> depth (H, W) uint16 mm."""
+        return self.render_with_labels(vertices, faces, room)[0]
+
+    def render_with_labels(self, vertices: np.ndarray, faces: np.ndarray,
+                           room: bool | Room = True) -> tuple[np.ndarray, np.ndarray]:
+        """Like render, plus body_mask (H, W) bool: pixels whose ray first hits the body (before
+        any invalidation; valid body pixels are ``body_mask & (depth > 0)``)."""
+        z, cos, body = self.render_ideal(vertices, faces, room)
+        return self._measure(z, cos), body
+
+    def render_ideal(self, vertices: np.ndarray, faces: np.ndarray,
+                     room: bool | Room = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Noise-free ray casting: z (H, W) float32 metres (inf = no hit), |cos| (H, W) float32
+        of the angle between ray and surface normal, body_mask (H, W) bool."""
+        vertices = np.ascontiguousarray(vertices, dtype=np.float32)
+        faces = np.asarray(faces)
+        if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+            raise UserInputError(f"need vertices (V, 3) and faces (F, 3), got {vertices.shape} "
+                                 f"and {faces.shape}")
+        static = self._static_view(room)
+        z, cos = static.z.copy(), static.cos.copy()
+        body = np.zeros(z.shape, dtype=bool)
+        pix = self._candidate_pixels(vertices, faces) if len(faces) else None
+        if pix is not None and len(pix):
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(_o3c.Tensor.from_numpy(vertices),
+                                _o3c.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)))
+            rays = self._rays.reshape(-1, 6)[pix]
+            hit = scene.cast_rays(_o3c.Tensor.from_numpy(rays))
+            bz = hit["t_hit"].numpy()
+            zf, cf, bf = z.reshape(-1), cos.reshape(-1), body.reshape(-1)
+            nearer = bz < zf[pix]
+            sel = pix[nearer]
+            zf[sel] = bz[nearer]
+            n = hit["primitive_normals"].numpy()[nearer]
+            cf[sel] = np.abs(np.einsum("nc,nc->n", n, rays[nearer, 3:])) * self._inv_len.reshape(-1)[sel]
+            bf[sel] = True
+        return z, cos, body
+
+    def _candidate_pixels(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
+        """Flat indices of the pixels whose rays may hit the mesh: the union of the image tiles
+        covered by each triangle's projected bounding box (so a body covering a tenth of the
+        image costs about a tenth of the rays). None when no pixel can see the mesh."""
+        m, pr, t = self._c2w, self.preset, _TILE
+        p = (vertices.astype(np.float64) - m[:3, 3]) @ m[:3, :3]
+        if not np.isfinite(p).all():
+            raise UserInputError("mesh vertices must be finite")
+        if (p[:, 2] <= 1e-3).all():
+            return None
+        if (p[:, 2] <= 1e-3).any():
+            # Part of the mesh is beside or behind the camera: its projection is unbounded.
+            return np.arange(pr.width * pr.height)
+        gh, gw = -(-pr.height // t), -(-pr.width // t)
+        u = p[:, 0] / p[:, 2] * pr.fx + pr.cx
+        v = p[:, 1] / p[:, 2] * pr.fy + pr.cy
+        uf, vf = u[faces], v[faces]
+        # One pixel of margin: a pixel's ray can hit a triangle whose box ends just before it.
+        tu0 = np.floor((uf.min(1) - 1.0) / t).clip(0, gw)
+        tu1 = np.floor((uf.max(1) + 1.0) / t).clip(-1, gw - 1)
+        tv0 = np.floor((vf.min(1) - 1.0) / t).clip(0, gh)
+        tv1 = np.floor((vf.max(1) + 1.0) / t).clip(-1, gh - 1)
+        keep = (tu0 <= tu1) & (tv0 <= tv1)
+        tu0, tu1, tv0, tv1 = (a[keep].astype(np.int64) for a in (tu0, tu1, tv0, tv1))
+        if len(tu0) == 0:
+            return None
+        # Mark every rectangle at once: +1/-1 at its corners, then a 2-D prefix sum.
+        stride = gw + 1
+        idx = np.concatenate([tv0 * stride + tu0, tv0 * stride + tu1 + 1,
+                              (tv1 + 1) * stride + tu0, (tv1 + 1) * stride + tu1 + 1])
+        w = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]), len(tu0))
+        cover = np.bincount(idx, w, minlength=(gh + 1) * stride).reshape(gh + 1, stride)
+        tiles = cover.cumsum(0).cumsum(1)[:gh, :gw] > 0.5
+        return np.flatnonzero(tiles[self._tile_v[:, None], self._tile_u[None, :]])
+
+    def _static_view(self, room: bool | Room) -> _StaticView:
+        if room is True:
+            room = Room()
+        if room is False or room is None:
+            shape = (self.preset.height, self.preset.width)
+            return _StaticView(np.full(shape, np.inf, np.float32), np.ones(shape, np.float32))
+        if not isinstance(room, Room):
+            raise UserInputError(f"room must be True, False or a sim.room.Room, got {type(room)}")
+        if room not in self._static:
+            v, f = room.mesh()
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(_o3c.Tensor.from_numpy(v),
+                                _o3c.Tensor.from_numpy(f.astype(np.uint32)))
+            hit = scene.cast_rays(_o3c.Tensor.from_numpy(self._rays))
+            h, w = self._rays.shape[:2]
+            cos = self._incidence(hit["primitive_normals"].numpy(), 0, h, 0, w)
+            if len(self._static) > 8:  # a handful of rooms per camera at most; bound the cache
+                self._static.clear()
+            self._static[room] = _StaticView(hit["t_hit"].numpy().astype(np.float32), cos)
+        return self._static[room]
+
+    # ---------------------------------------------------------------- sensor model
+    def _measure(self, z: np.ndarray, cos: np.ndarray) -> np.ndarray:
+        """Ideal z (H, W) metres -> measured depth (H, W) uint16 mm under self.noise."""
+        return measure_depth(z, cos, self.preset, self.noise, self.rng)
+
+
+def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: NoiseModel,
+                  rng: np.random.Generator) -> np.ndarray:
+    """Ideal depth z (H, W) metres (inf = no hit) and |cos| incidence (H, W) -> (H, W) uint16 mm
+    as the sensor would report it. Draws from rng only for the noise terms that are on."""
+    fb = np.float32(preset.fx * preset.baseline_m)
+    hit = np.isfinite(z)
+    disp = np.zeros(z.shape, np.float32)
+    np.divide(fb, z, out=disp, where=hit)  # disparity in px; 0 where nothing was hit
+    valid = hit.copy()
+    if noise.edge_jump_px > 0:
+        valid &= ~_edges(disp, noise.edge_jump_px, noise.edge_width_px)
+    if noise.occlusion:
+        valid &= ~_occluded(disp)
+    if noise.grazing_deg is not None:
+        valid &= cos >= np.float32(np.cos(np.radians(noise.grazing_deg)))
+    sigma = preset.disparity_sigma_px if noise.disparity_sigma_px is None else noise.disparity_sigma_px
+    measured = disp
+    if sigma > 0:
+        measured = disp + np.float32(sigma) * rng.standard_normal(z.shape, dtype=np.float32)
+    if noise.quantize:
+        step = np.float32(0.5 ** preset.subpixel_bits if noise.subpixel else 1.0)
+        measured = np.round(measured / step) * step
+    if noise.dropout > 0:
+        valid &= rng.random(z.shape, dtype=np.float32) >= np.float32(noise.dropout)
+    valid &= measured > 0
+    depth_m = np.zeros(z.shape, np.float32)
+    np.divide(fb, measured, out=depth_m, where=valid)
+    if noise.range_limits:
+        valid &= (depth_m >= preset.min_range_m) & (depth_m <= preset.max_range_m)
+    valid &= depth_m < 65.5  # what fits in uint16 millimetres
+    out = np.zeros(z.shape, np.uint16)
+    out[valid] = np.rint(depth_m[valid] * 1000.0).astype(np.uint16)
+    return out
+
+
+def _edges(disp: np.ndarray, jump_px: float, width_px: int) -> np.ndarray:
+    """(H, W) bool: pixels within width_px of a disparity jump larger than jump_px (depth edge)."""
+    edge = np.zeros(disp.shape, dtype=bool)
+    dx = np.abs(np.diff(disp, axis=1)) > jump_px
+    dy = np.abs(np.diff(disp, axis=0)) > jump_px
+    edge[:, :-1] |= dx
+    edge[:, 1:] |= dx
+    edge[:-1, :] |= dy
+    edge[1:, :] |= dy
+    for _ in range(max(width_px - 1, 0)):  # grow by one pixel per step (4-neighbourhood)
+        grown = edge.copy()
+        grown[:, 1:] |= edge[:, :-1]
+        grown[:, :-1] |= edge[:, 1:]
+        grown[1:, :] |= edge[:-1, :]
+        grown[:-1, :] |= edge[1:, :]
+        edge = grown
+    return edge
+
+
+def _occluded(disp: np.ndarray, tol_px: float = 0.5) -> np.ndarray:
+    """(H, W) bool: pixels the second view cannot see (the stereo "shadow" beside foreground).
+
+    The depth image is referenced to the right camera (as depthai does by default); the other
+    view sits at -baseline along camera X, where pixel u appears at u + d(u). A pixel is hidden
+    there when some pixel to its left lands at or beyond it: max_{u' < u}(u' + d(u')) > u + d(u).
+    """
+    s = disp + np.arange(disp.shape[1], dtype=np.float32)
+    prev = np.maximum.accumulate(s, axis=1)
+    hidden = np.zeros(disp.shape, dtype=bool)
+    hidden[:, 1:] = prev[:, :-1] > s[:, 1:] + np.float32(tol_px)
+    return hidden
+
+
+# -------------------------------------------------------------------- camera placement
+def look_at_camera(distance: float, height: float, yaw: float, pitch: float | None = None,
+                   target: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> np.ndarray:
+    """camera_to_world (4, 4) for a camera ``distance`` metres from target horizontally, at
+    ``height`` metres above the floor, around the subject by ``yaw`` radians (0 = in front of a
+    subject facing +z, i.e. at +z looking toward -z; pi/2 = on the subject's left, +x).
+
+    pitch None: look straight at target. Else: face target horizontally, tilted down by pitch
+    radians (negative looks up)."""
+    t = np.asarray(target, dtype=np.float64)
+    eye = t + np.array([distance * np.sin(yaw), 0.0, distance * np.cos(yaw)])
+    eye[1] = height
+    up = np.array([0.0, 1.0, 0.0])
+    if pitch is None:
+        fwd = t - eye
+    else:
+        horiz = np.array([-np.sin(yaw), 0.0, -np.cos(yaw)])
+        fwd = np.cos(pitch) * horiz - np.sin(pitch) * up
+    n = np.linalg.norm(fwd)
+    if n < 1e-9:
+        raise UserInputError("look_at_camera: the camera sits on its target")
+    fwd /= n
+    right = np.cross(fwd, up)
+    if np.linalg.norm(right) < 1e-6:
+        raise UserInputError("look_at_camera: looking straight up or down leaves the roll undefined")
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, down, fwd, eye
+    return m
+
+
+def random_camera_pose(rng: np.random.Generator, distance: tuple[float, float] = (1.5, 4.0),
+                       height: tuple[float, float] = (0.5, 2.0),
+                       yaw: tuple[float, float] = (-np.pi, np.pi), pitch_jitter: float = 0.1,
+                       target: tuple[float, float, float] = (0.0, 1.0, 0.0)) -> np.ndarray:
+    """A random camera_to_world (4, 4) around the subject for training data: uniform distance,
+    height and yaw, aimed at target with the pitch jittered uniformly by +-pitch_jitter rad."""
+    d = rng.uniform(*distance)
+    h = rng.uniform(*height)
+    y = rng.uniform(*yaw)
+    pitch = np.arctan2(h - target[1], d) + rng.uniform(-pitch_jitter, pitch_jitter)
+    return look_at_camera(d, h, y, pitch, target)
+
+
+__all__ = [
+    "CameraPreset", "PRESETS", "get_preset", "NoiseModel", "VirtualDepthCamera", "measure_depth",
+    "look_at_camera", "random_camera_pose",
+]

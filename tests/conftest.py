@@ -1,0 +1,16 @@
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED_BVH = ROOT.parent / "shared" / "data" / "bvh"
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+@pytest.fixture(scope="session")
+def shared_bvh() -> Path:
+    if not SHARED_BVH.is_dir():
+        pytest.skip("../shared/data/bvh is not present")
+    return SHARED_BVH
