@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from live.frames import DepthFrame, FrameResult, GroundTruth, MocapPacket
-from live.ring import ObjectRing
+from live.ring import ObjectRing, RingClosedError, RingFullError
 from live.session import SessionWriter
 from live.sources import Source
 from live.stats import LatencyRecorder, StageStats
@@ -114,10 +114,16 @@ class Pipeline:
                     self.recorder.write(frame)
                     self.recorded += 1
             run.frames += 1
-            t_ns = int(getattr(frame, "t_ns", 0))
+            arrived = time.monotonic_ns()
             while not stop.is_set():
-                # In "every" mode a full ring blocks; wake regularly to honour stop.
-                if run.ring.write(_Arrival(frame, time.monotonic_ns()), t_ns, timeout=_POLL_S) is not None:
+                # In "every" mode a full ring blocks; wake regularly to honour stop. The ring is
+                # keyed by arrival time (always nondecreasing); frames keep their sensor time.
+                try:
+                    run.ring.write(_Arrival(frame, arrived), arrived, timeout=_POLL_S)
+                    return
+                except RingFullError:
+                    continue
+                except RingClosedError:
                     return
 
         return emit

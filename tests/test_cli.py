@@ -1,0 +1,104 @@
+"""The CLI: replay writes stats.json, depth folders replay like sessions, mistakes are one line."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from live.cli import main
+from live.frames import DepthFrame
+from live.session import SessionWriter
+from live.sources import StreamInfo
+
+ROOT = Path(__file__).resolve().parent.parent
+K = np.array([[200.0, 0, 32], [0, 200.0, 20], [0, 0, 1]])
+
+
+def _session(path, n=12, size=(40, 64)):
+    rng = np.random.default_rng(3)
+    with SessionWriter(path, [StreamInfo("cam", "depth", {"fps": 30})]) as w:
+        for i in range(n):
+            img = rng.integers(500, 4000, size=size).astype(np.uint16)
+            img[:5] = 0
+            w.write(DepthFrame(1_000 + i * 33_000_000, "cam", depth_mm=img, intrinsics=K))
+    return path
+
+
+def test_replay_writes_stats(tmp_path, capsys):
+    s = _session(tmp_path / "s.mcap")
+    assert main(["replay", str(s), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    stats = json.loads((tmp_path / "out" / "stats.json").read_text())
+    assert stats["frames"] == 12
+    assert stats["stages"]["cloud"]["frames_out"] == 12
+    assert stats["end_to_end"]["latency_ms"]["count"] == 12
+    for key in ("p50", "p95", "p99"):
+        assert key in stats["stages"]["cloud"]["latency_ms"]
+
+
+def test_replay_of_depth_folder(tmp_path):
+    folder = tmp_path / "depth"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(5):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), rng.integers(0, 3000, size=(40, 64)).astype(np.uint16))
+    (folder / "0003.png").write_bytes(b"garbage, not a png")  # counted, skipped
+    (folder / "intrinsics.json").write_text(json.dumps({"fx": 200, "fy": 200, "cx": 32, "cy": 20,
+                                                        "width": 64, "height": 40, "fps": 15}))
+    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    stats = json.loads((tmp_path / "out" / "stats.json").read_text())
+    assert stats["frames"] == 4
+    assert stats["sources"]["depth"]["counters"]["bad_images"] == 1
+
+
+def test_truncated_session_replays_and_reports(tmp_path, capsys):
+    s = _session(tmp_path / "s.mcap", n=40, size=(200, 320))  # ~2 frames per chunk
+    data = s.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 3 // 4])
+    assert main(["replay", str(cut), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "stopped" in err[0]
+    stats = json.loads((tmp_path / "out" / "stats.json").read_text())
+    assert 0 < stats["frames"] < 40 and stats["session_error"]
+
+
+def test_info_and_export(tmp_path, capsys):
+    s = _session(tmp_path / "s.mcap")
+    assert main(["info", str(s), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["streams"][0]["messages"] == 12
+    assert main(["export", str(s), "--out", str(tmp_path / "exp")]) == 0
+    z = np.load(tmp_path / "exp" / "depth_cam.npz")
+    assert z["offsets"].shape == (13,) and z["points"].shape[1] == 3
+    assert z["offsets"][-1] == len(z["points"])
+
+
+@pytest.mark.parametrize("argv", [
+    ["replay", "/no/such/file.mcap", "--out", "/tmp/x"],
+    ["replay", "README.md", "--out", "/tmp/x"],
+    ["replay", "README.md", "--out", "/tmp/x", "--speed", "fast"],
+    ["info", "/no/such.mcap"],
+])
+def test_user_mistakes_are_one_line(argv, capsys):
+    code = main([a if not a.endswith(".md") else str(ROOT / a) for a in argv])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("livecap ")
+
+
+def test_every_command_has_help():
+    for cmd in ["demo", "replay", "record", "run", "export", "info", "devices"]:
+        out = subprocess.run([sys.executable, "-m", "live.cli", cmd, "--help"], cwd=ROOT,
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and "usage" in out.stdout
+
+
+def test_importing_runtime_packages_never_imports_torch():
+    code = ("import sys, live, live.cli, live.pipeline, live.session, drivers, models, sim, sim.replay;"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert out.stdout.strip() == "False", out.stderr
