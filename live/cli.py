@@ -66,6 +66,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", type=Path)
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
+    p = sub.add_parser("synth", help="write a synthetic session (a motion on a body, seen by a virtual camera)",
+                       description="Render a BVH motion on a body with the virtual depth camera and write a session "
+                       "exactly like a recorded one, plus ground truth (joints, rotations, body). Same seed, same bytes.")
+    p.add_argument("--motion", required=True, help="a BVH clip")
+    p.add_argument("--body", default="performer", help="body preset, body .npz, or anny:k=v,... (default: performer)")
+    p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
+    p.add_argument("--camera", default="oak-d", help="oak-d (default), oak-d-pro, kinect-v1")
+    p.add_argument("--seconds", type=float, default=None, help="length (default: the whole clip)")
+    p.add_argument("--start", type=float, default=0.0, help="start this many seconds into the clip")
+    p.add_argument("--fps", type=float, default=None, help="sensor rate (default: the camera preset's)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--imu", choices=["xbus", "lines"], default=None, help="also stream a simulated IMU suit")
+    p.add_argument("--distance", type=float, default=3.0, help="camera distance from the performance centre, m")
+    p.add_argument("--height", type=float, default=1.2, help="camera height above the floor, m")
+    p.add_argument("--yaw", type=float, default=0.0, help="camera angle around the performer, degrees (0 = in front)")
+    p.add_argument("--no-noise", action="store_true", help="ideal depth (no sensor noise)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
                    description="List connected OAK devices, RealSense devices and serial ports.")
     return parser

@@ -145,3 +145,34 @@ def cmd_devices(args) -> int:
 
     print(format_device_list(list_devices()))
     return 0
+
+
+def cmd_synth(args) -> int:
+    import math
+
+    from sim.synth import CameraPlacement, SynthOptions, synthesize
+
+    if not Path(args.motion).is_file():
+        raise UserInputError(f"no such motion file: {args.motion}")
+    opts = SynthOptions(motion=args.motion, body=args.body, camera=args.camera, seconds=args.seconds,
+                        fps=args.fps, seed=args.seed, imu=args.imu, start_s=args.start, noise=not args.no_noise,
+                        placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw)))
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="synth", unit="frame", leave=False, file=sys.stderr, disable=None)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+    try:
+        summary = synthesize(opts, args.out, progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    print(f"livecap synth: {summary['frames']} frames at {summary['fps']:g} fps of {Path(args.motion).name} "
+          f"on {summary['body']} ({summary['camera']}) -> {args.out}")
+    return 0

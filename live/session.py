@@ -58,7 +58,7 @@ class SessionWriter:
     """Writes frames into an MCAP session; a context manager that always finishes the file."""
 
     def __init__(self, path: str | Path, streams: list[StreamInfo] = (), *, extra: dict | None = None,
-                 chunk_size: int = _CHUNK_SIZE):
+                 chunk_size: int = _CHUNK_SIZE, start_wall_time_ns: int | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
@@ -71,8 +71,9 @@ class SessionWriter:
         self._closed = False
         meta = {
             "livecap_version": __version__,
-            "start_wall_time_ns": str(time.time_ns()),
-            "start_monotonic_ns": str(time.monotonic_ns()),
+            "start_wall_time_ns": str(time.time_ns() if start_wall_time_ns is None else start_wall_time_ns),
+            # Maps the host monotonic timestamps of the messages to wall time (0: not a live capture).
+            "start_monotonic_ns": str(time.monotonic_ns() if start_wall_time_ns is None else 0),
             "streams": json.dumps([{"name": s.name, "kind": s.kind, "meta": s.meta} for s in streams]),
         }
         for key, value in (extra or {}).items():
@@ -110,8 +111,9 @@ class SessionWriter:
         self._sequence += 1
         self.messages += 1
 
-    def attach(self, name: str, data: bytes, media_type: str = "application/octet-stream") -> None:
-        now = time.time_ns()
+    def attach(self, name: str, data: bytes, media_type: str = "application/octet-stream",
+               create_time_ns: int | None = None) -> None:
+        now = time.time_ns() if create_time_ns is None else create_time_ns
         self._writer.add_attachment(create_time=now, log_time=0, name=name, media_type=media_type, data=data)
 
     def close(self) -> None:

@@ -53,3 +53,37 @@ class Source(Protocol):
 
     @property
     def counters(self) -> dict[str, int]: ...
+
+
+def open_source(text: str, *, speed: float | None = 1.0) -> Source:
+    """A source object for a source string (see drivers.source_url for the accepted forms).
+
+    ``speed`` applies to replayed sources (replay, folder, sim): 1.0 is recorded timing, None
+    as fast as the pipeline takes frames.
+    """
+    from drivers.source_url import open_camera_source, parse_source
+
+    spec = parse_source(text)
+    if spec.kind in ("oak", "realsense", "realsense-bag"):
+        return open_camera_source(spec)
+    if spec.kind == "serial":
+        from drivers.serial_source import SerialSource
+
+        opts = spec.options
+        kwargs = {"baud": int(opts["baud"])} if "baud" in opts else {}
+        return SerialSource(spec.target, protocol=opts.get("protocol", "xbus"), **kwargs)
+    if spec.kind == "replay":
+        from sim.replay import ReplaySource
+
+        return ReplaySource(spec.target, speed=speed)
+    if spec.kind == "folder":
+        from sim.depth_folder import DepthFolderSource
+
+        return DepthFolderSource(spec.target, speed=speed)
+    if spec.kind == "sim":
+        from sim.synth import SimulatedSource
+
+        return SimulatedSource.from_spec(spec.target, spec.options, speed=speed)
+    from live.errors import UserInputError
+
+    raise UserInputError(f"source kind {spec.kind!r} cannot be opened here")

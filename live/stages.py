@@ -27,3 +27,75 @@ class CloudStage:
         self.world_points = points_to_world(pts, result.depth.camera_to_world)
         result.latency_ms.setdefault("points", float(len(pts)))
         return len(pts) > 0
+
+
+class RetargetStage:
+    """Performer skeletons -> avatar poses on another body (analytic retargeter).
+
+    The performer's rest skeleton is unknown live: it is estimated from the skeletons seen
+    (median bone lengths), refined over the first ``warmup`` frames, then frozen so that the
+    avatar's proportions stay steady. ``skin=True`` also poses the avatar mesh (LBS).
+    """
+
+    name = "retarget"
+
+    def __init__(self, avatar, *, foot_lock: bool = True, hand_ik: bool = False, skin: bool = False,
+                 warmup: int = 30, use_truth: bool = False):
+        self.avatar = avatar
+        self.foot_lock = foot_lock
+        self.hand_ik = hand_ik
+        self.skin = skin
+        self.warmup = warmup
+        self.use_truth = use_truth
+        self._seen: list[np.ndarray] = []
+        self._retargeter = None
+        self._last_t_ns: int | None = None
+
+    def _source_rest(self, joints: np.ndarray) -> np.ndarray | None:
+        from live.retarget.analytic import estimate_rest_joints
+
+        if len(self._seen) < self.warmup:
+            self._seen.append(np.asarray(joints, np.float64))
+            rest = estimate_rest_joints(np.stack(self._seen))
+            return rest
+        return None
+
+    def process(self, result: FrameResult) -> bool:
+        from live.frames import AvatarPose
+        from live.retarget.stage import AnalyticRetargeter
+
+        if self.use_truth:
+            if result.truth is None:
+                return False
+            joints = result.truth.joints
+        elif result.skeleton is not None:
+            joints = result.skeleton.joints
+        else:
+            return False
+        rest = self._source_rest(joints)
+        if rest is not None:
+            if self._retargeter is None:
+                self._retargeter = AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock,
+                                                      hand_ik=self.hand_ik)
+            else:
+                # Keep contact/twist state; only the proportions of the source change.
+                self._retargeter.source = type(self._retargeter.source).of(rest)
+                from live.retarget.analytic import leg_ratio
+
+                self._retargeter.ratio = leg_ratio(self._retargeter.source.rest_joints,
+                                                   self._retargeter.target.rest_joints)
+        dt = None
+        if self._last_t_ns is not None and result.t_ns > self._last_t_ns:
+            dt = (result.t_ns - self._last_t_ns) / 1e9
+        self._last_t_ns = result.t_ns
+        root, rotations, avatar_joints = self._retargeter.step(joints, dt=dt)
+        vertices = None
+        if self.skin:
+            from live.skinning import lbs
+
+            vertices = lbs(self.avatar.vertices, self.avatar.weights, self.avatar.rest_joints,
+                           rotations, root)[0]
+        result.avatar = AvatarPose(t_ns=result.t_ns, root=np.asarray(root, np.float32),
+                                   rotations=np.asarray(rotations, np.float32),
+                                   joints=np.asarray(avatar_joints, np.float32), vertices=vertices)
+        return True

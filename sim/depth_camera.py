@@ -2,8 +2,9 @@
 
 Rays are cast with open3d's ``RaycastingScene`` (Embree). The camera does not move, so its rays
 are built once, and the static room is cast once per room and cached; each frame only builds a
-scene of the body and casts the rays of the body's bounding box in the image, then keeps the
-nearer of body and room per pixel (the first hit over a union is the nearest of the hits).
+scene of the body (its camera-facing triangles when the mesh is closed) and casts the rays of the
+image tiles the body projects onto, then keeps the nearer of body and room per pixel (the first
+hit over a union is the nearest of the hits).
 
 Output follows the DepthFrame convention: (H, W) uint16 millimetres, 0 = no data, OpenCV camera
 frame, pixel (u, v) looks along K^-1 (u, v, 1) as ``live.depth.depth_to_points`` assumes.
@@ -98,6 +99,7 @@ class NoiseModel:
     grazing_deg: drop pixels whose surface normal is more than this from the ray. None = off.
     dropout: probability that a pixel drops out at random.
     range_limits: drop depths outside [min_range_m, max_range_m] of the preset.
+    noise_block_px: disparity noise is shared over square patches of this size (1 = per pixel).
     """
 
     disparity_sigma_px: float | None = None
@@ -109,6 +111,15 @@ class NoiseModel:
     grazing_deg: float | None = 80.0
     dropout: float = 0.01
     range_limits: bool = True
+    noise_block_px: int = 2
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.dropout < 1.0:
+            raise UserInputError(f"dropout must be in [0, 1), got {self.dropout}")
+        if (self.disparity_sigma_px or 0.0) < 0 or self.edge_jump_px < 0 or self.noise_block_px < 1:
+            raise UserInputError("noise sigma and edge jump must be >= 0, noise_block_px >= 1")
+        if self.grazing_deg is not None and not 0.0 < self.grazing_deg <= 90.0:
+            raise UserInputError(f"grazing_deg must be in (0, 90], got {self.grazing_deg}")
 
     @classmethod
     def none(cls) -> NoiseModel:
@@ -134,6 +145,8 @@ class VirtualDepthCamera:
         m = np.asarray(camera_to_world, dtype=np.float64)
         if m.shape != (4, 4):
             raise UserInputError(f"camera_to_world must be 4x4, got {m.shape}")
+        if not np.allclose(m[:3, :3].T @ m[:3, :3], np.eye(3), atol=1e-5) or np.linalg.det(m[:3, :3]) < 0:
+            raise UserInputError("camera_to_world must be a rigid transform (a rotation, no scale)")
         self._c2w = m.copy()
         self._c2w.setflags(write=False)
         self.noise = NoiseModel() if noise is None else noise
@@ -148,8 +161,12 @@ class VirtualDepthCamera:
         ).astype(np.float32)
         self._inv_len = (1.0 / np.linalg.norm(d_world, axis=-1)).astype(np.float32)
         self._static: dict[Room, _StaticView] = {}
-        self._tile_v = np.arange(p.height) // _TILE
-        self._tile_u = np.arange(p.width) // _TILE
+        self._winding: dict[tuple, int] = {}
+        # Flat pixel indices of each _TILE x _TILE tile, (gh, gw, _TILE^2), -1 beyond the image.
+        gh, gw = -(-p.height // _TILE), -(-p.width // _TILE)
+        pad = np.full((gh * _TILE, gw * _TILE), -1, dtype=np.int64)
+        pad[: p.height, : p.width] = np.arange(p.height * p.width).reshape(p.height, p.width)
+        self._tile_pixels = pad.reshape(gh, _TILE, gw, _TILE).transpose(0, 2, 1, 3).reshape(gh, gw, -1)
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -182,14 +199,17 @@ class VirtualDepthCamera:
         if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
             raise UserInputError(f"need vertices (V, 3) and faces (F, 3), got {vertices.shape} "
                                  f"and {faces.shape}")
+        if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+            raise UserInputError(f"faces index vertices outside 0..{len(vertices) - 1}")
         static = self._static_view(room)
         z, cos = static.z.copy(), static.cos.copy()
         body = np.zeros(z.shape, dtype=bool)
         pix = self._candidate_pixels(vertices, faces) if len(faces) else None
         if pix is not None and len(pix):
             scene = o3d.t.geometry.RaycastingScene()
+            visible = self._front_faces(vertices, faces)
             scene.add_triangles(_o3c.Tensor.from_numpy(vertices),
-                                _o3c.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)))
+                                _o3c.Tensor.from_numpy(visible.astype(np.uint32)))
             rays = self._rays.reshape(-1, 6)[pix]
             hit = scene.cast_rays(_o3c.Tensor.from_numpy(rays))
             bz = hit["t_hit"].numpy()
@@ -202,12 +222,34 @@ class VirtualDepthCamera:
             bf[sel] = True
         return z, cos, body
 
+    def _front_faces(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        """The faces that can be a first hit. On a closed, consistently wound mesh a ray from
+        outside always enters through a face turned towards the camera, so the others are left
+        out of the scene: the BVH build dominates the frame time and this halves it. Open meshes
+        (a plane, a mesh with holes) keep all their faces, and so does a camera inside the
+        mesh's bounding box."""
+        faces = np.asarray(faces)
+        key = (faces.shape, hash(faces.tobytes()))
+        sign = self._winding.get(key)
+        if sign is None:
+            sign = closed_mesh_winding(vertices, faces)
+            if len(self._winding) > 16:
+                self._winding.clear()
+            self._winding[key] = sign
+        eye = self._c2w[:3, 3].astype(np.float32)
+        # From inside a closed mesh the first hit faces away; outside its box we are outside it.
+        if sign == 0 or ((eye >= vertices.min(0)) & (eye <= vertices.max(0))).all():
+            return faces
+        a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+        n = np.cross(b - a, c - a)
+        return faces[np.einsum("fc,fc->f", n, a - eye) * sign <= 0]
+
     def _candidate_pixels(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray | None:
         """Flat indices of the pixels whose rays may hit the mesh: the union of the image tiles
         covered by each triangle's projected bounding box (so a body covering a tenth of the
         image costs about a tenth of the rays). None when no pixel can see the mesh."""
         m, pr, t = self._c2w, self.preset, _TILE
-        p = (vertices.astype(np.float64) - m[:3, 3]) @ m[:3, :3]
+        p = (vertices - m[:3, 3].astype(np.float32)) @ m[:3, :3].astype(np.float32)
         if not np.isfinite(p).all():
             raise UserInputError("mesh vertices must be finite")
         if (p[:, 2] <= 1e-3).all():
@@ -218,12 +260,16 @@ class VirtualDepthCamera:
         gh, gw = -(-pr.height // t), -(-pr.width // t)
         u = p[:, 0] / p[:, 2] * pr.fx + pr.cx
         v = p[:, 1] / p[:, 2] * pr.fy + pr.cy
-        uf, vf = u[faces], v[faces]
+        fa, fb, fc = faces[:, 0], faces[:, 1], faces[:, 2]
+        # Column-wise min/max: numpy reduces a length-3 axis slowly.
+        ua, ub, uc, va, vb, vc = u[fa], u[fb], u[fc], v[fa], v[fb], v[fc]
+        umin, umax = np.minimum(np.minimum(ua, ub), uc), np.maximum(np.maximum(ua, ub), uc)
+        vmin, vmax = np.minimum(np.minimum(va, vb), vc), np.maximum(np.maximum(va, vb), vc)
         # One pixel of margin: a pixel's ray can hit a triangle whose box ends just before it.
-        tu0 = np.floor((uf.min(1) - 1.0) / t).clip(0, gw)
-        tu1 = np.floor((uf.max(1) + 1.0) / t).clip(-1, gw - 1)
-        tv0 = np.floor((vf.min(1) - 1.0) / t).clip(0, gh)
-        tv1 = np.floor((vf.max(1) + 1.0) / t).clip(-1, gh - 1)
+        tu0 = np.floor((umin - 1.0) / t).clip(0, gw)
+        tu1 = np.floor((umax + 1.0) / t).clip(-1, gw - 1)
+        tv0 = np.floor((vmin - 1.0) / t).clip(0, gh)
+        tv1 = np.floor((vmax + 1.0) / t).clip(-1, gh - 1)
         keep = (tu0 <= tu1) & (tv0 <= tv1)
         tu0, tu1, tv0, tv1 = (a[keep].astype(np.int64) for a in (tu0, tu1, tv0, tv1))
         if len(tu0) == 0:
@@ -235,7 +281,8 @@ class VirtualDepthCamera:
         w = np.repeat(np.array([1.0, -1.0, -1.0, 1.0]), len(tu0))
         cover = np.bincount(idx, w, minlength=(gh + 1) * stride).reshape(gh + 1, stride)
         tiles = cover.cumsum(0).cumsum(1)[:gh, :gw] > 0.5
-        return np.flatnonzero(tiles[self._tile_v[:, None], self._tile_u[None, :]])
+        pix = self._tile_pixels[tiles].reshape(-1)
+        return pix[pix >= 0] if pr.height % t or pr.width % t else pix
 
     def _static_view(self, room: bool | Room) -> _StaticView:
         if room is True:
@@ -251,8 +298,8 @@ class VirtualDepthCamera:
             scene.add_triangles(_o3c.Tensor.from_numpy(v),
                                 _o3c.Tensor.from_numpy(f.astype(np.uint32)))
             hit = scene.cast_rays(_o3c.Tensor.from_numpy(self._rays))
-            h, w = self._rays.shape[:2]
-            cos = self._incidence(hit["primitive_normals"].numpy(), 0, h, 0, w)
+            normals = hit["primitive_normals"].numpy()
+            cos = np.abs(np.einsum("hwc,hwc->hw", normals, self._rays[..., 3:])) * self._inv_len
             if len(self._static) > 8:  # a handful of rooms per camera at most; bound the cache
                 self._static.clear()
             self._static[room] = _StaticView(hit["t_hit"].numpy().astype(np.float32), cos)
@@ -266,13 +313,12 @@ class VirtualDepthCamera:
 
 def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: NoiseModel,
                   rng: np.random.Generator) -> np.ndarray:
-    """Ideal depth z (H, W) metres (inf = no hit) and |cos| incidence (H, W) -> (H, W) uint16 mm
-    as the sensor would report it. Draws from rng only for the noise terms that are on."""
+    """Ideal depth z (H, W) float32 metres (inf = no hit) and |cos| incidence (H, W) -> (H, W)
+    uint16 mm as the sensor would report it. Draws from rng only for the noise terms that are on."""
+    z = np.asarray(z, dtype=np.float32)
     fb = np.float32(preset.fx * preset.baseline_m)
-    hit = np.isfinite(z)
-    disp = np.zeros(z.shape, np.float32)
-    np.divide(fb, z, out=disp, where=hit)  # disparity in px; 0 where nothing was hit
-    valid = hit.copy()
+    disp = fb / z  # disparity in px; inf (no hit) gives 0
+    valid = disp > 0
     if noise.edge_jump_px > 0:
         valid &= ~_edges(disp, noise.edge_jump_px, noise.edge_width_px)
     if noise.occlusion:
@@ -282,21 +328,33 @@ def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: N
     sigma = preset.disparity_sigma_px if noise.disparity_sigma_px is None else noise.disparity_sigma_px
     measured = disp
     if sigma > 0:
-        measured = disp + np.float32(sigma) * rng.standard_normal(z.shape, dtype=np.float32)
+        measured = disp + _block_noise(rng, z.shape, noise.noise_block_px, np.float32(sigma))
     if noise.quantize:
         step = np.float32(0.5 ** preset.subpixel_bits if noise.subpixel else 1.0)
-        measured = np.round(measured / step) * step
+        measured = np.rint(measured * (1 / step)) * step
     if noise.dropout > 0:
         valid &= rng.random(z.shape, dtype=np.float32) >= np.float32(noise.dropout)
     valid &= measured > 0
-    depth_m = np.zeros(z.shape, np.float32)
-    np.divide(fb, measured, out=depth_m, where=valid)
+    depth_mm = np.float32(1000.0) * fb / np.where(valid, measured, np.float32(1.0))
+    lo, hi = 0.0, 65535.0  # what fits in uint16 millimetres
     if noise.range_limits:
-        valid &= (depth_m >= preset.min_range_m) & (depth_m <= preset.max_range_m)
-    valid &= depth_m < 65.5  # what fits in uint16 millimetres
-    out = np.zeros(z.shape, np.uint16)
-    out[valid] = np.rint(depth_m[valid] * 1000.0).astype(np.uint16)
+        lo, hi = preset.min_range_m * 1000.0, min(preset.max_range_m * 1000.0, hi)
+    valid &= (depth_mm >= np.float32(lo)) & (depth_mm <= np.float32(hi))
+    out = np.rint(depth_mm).astype(np.uint16)
+    out[~valid] = 0
     return out
+
+
+def _block_noise(rng: np.random.Generator, shape: tuple[int, int], block: int,
+                 sigma: np.float32) -> np.ndarray:
+    """(H, W) float32 Gaussian noise, constant over block x block patches: stereo matching
+    aggregates a window, so the errors of neighbouring pixels are correlated."""
+    h, w = shape
+    b = max(int(block), 1)
+    small = rng.standard_normal((-(-h // b), -(-w // b)), dtype=np.float32) * sigma
+    if b == 1:
+        return small
+    return np.repeat(np.repeat(small, b, axis=0), b, axis=1)[:h, :w]
 
 
 def _edges(disp: np.ndarray, jump_px: float, width_px: int) -> np.ndarray:
@@ -330,6 +388,28 @@ def _occluded(disp: np.ndarray, tol_px: float = 0.5) -> np.ndarray:
     hidden = np.zeros(disp.shape, dtype=bool)
     hidden[:, 1:] = prev[:, :-1] > s[:, 1:] + np.float32(tol_px)
     return hidden
+
+
+def closed_mesh_winding(vertices: np.ndarray, faces: np.ndarray) -> int:
+    """+1 if the mesh (V, 3), (F, 3) is closed with faces wound counter-clockwise seen from
+    outside, -1 if closed and wound the other way, 0 if not closed or not consistently wound
+    (every directed edge must occur exactly once and be matched by its reverse)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return 0
+    src = f.reshape(-1)
+    dst = f[:, [1, 2, 0]].reshape(-1)
+    n = int(f.max()) + 1
+    directed = np.sort(src * n + dst)
+    if (directed[1:] == directed[:-1]).any():
+        return 0
+    reverse = np.sort(dst * n + src)
+    if not np.array_equal(directed, reverse):
+        return 0
+    v = np.asarray(vertices, dtype=np.float64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    volume = np.einsum("fc,fc->f", a, np.cross(b, c)).sum() / 6.0
+    return 1 if volume > 0 else -1 if volume < 0 else 0
 
 
 # -------------------------------------------------------------------- camera placement
@@ -379,5 +459,6 @@ def random_camera_pose(rng: np.random.Generator, distance: tuple[float, float] =
 
 __all__ = [
     "CameraPreset", "PRESETS", "get_preset", "NoiseModel", "VirtualDepthCamera", "measure_depth",
+    "closed_mesh_winding",
     "look_at_camera", "random_camera_pose",
 ]

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from live.errors import UserInputError
-from live.retarget.ik import axis_angle_matrix, cross, normalize, rotation_between
+from live.retarget.ik import axis_angle_matrix, cross, dot, normalize, rotation_between
 from live.rotations import matrix_to_quat
 from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 
@@ -82,9 +82,11 @@ class RestInfo:
     rest_joints: np.ndarray  # (22, 3)
     offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
     frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
-    swing: tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]  # per level: joints, children, rest dirs
+    swing_dirs: np.ndarray  # (22, 3) rest unit direction to the only child (zero elsewhere)
     limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
-    limb_hinges: np.ndarray  # (4, 3) rest hinge axis, orthogonal to the upper bone
+    limb_hinges: np.ndarray  # (4, 3) rest hinge axis h, orthogonal to the upper bone
+    limb_binormals: np.ndarray  # (4, 3) upper bone x h
+    limb_rest_c: np.ndarray  # (4,) rest lower-bone direction . h (kept by a hinge about h)
 
     @classmethod
     def of(cls, rest_joints: np.ndarray) -> RestInfo:
@@ -94,15 +96,15 @@ class RestInfo:
         if pelvis_height(rest) <= 0:
             raise UserInputError("rest skeleton pelvis must be above the floor (y > 0)")
         frames = {j: frame_matrix(rest[a1] - rest[a0], rest[b1] - rest[b0]) for j, (a0, a1, b0, b1) in _FRAMED.items()}
-        swing = []
-        for level in LEVELS:
-            js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
-            cs = np.array([CHILDREN[j][0] for j in js], dtype=np.int64)
-            swing.append((js, cs, normalize(rest[cs] - rest[js]) if len(js) else np.zeros((0, 3))))
+        swing = np.zeros((NUM_JOINTS, 3))
+        for j in range(NUM_JOINTS):
+            if len(CHILDREN[j]) == 1:
+                swing[j] = normalize(rest[CHILDREN[j][0]] - rest[j])
         dirs = normalize(np.array([rest[m] - rest[r] for r, m, _, _ in LIMBS]))
         hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
-        return cls(rest, rest_offsets(rest), frames, tuple(swing), dirs, hinges)
+        lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
+        return cls(rest, rest_offsets(rest), frames, swing, dirs, hinges, cross(dirs, hinges), dot(lower, hinges))
 
 
 def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray):
@@ -111,21 +113,44 @@ def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: 
     joints (N, 22, 3); swing_glob (N, K, 3, 3): the upper bones' global rotations without twist;
     ks (K,) limb numbers. Returns (angle (N, K), weight (N, K) in [0, 1], 0 where the limb is too
     straight for its plane to be known).
+
+    A hinge about h keeps the lower bone's component along h at its rest value c = e0 . h. With
+    the lower bone s seen in the untwisted upper frame, x = s . h, y = s . (d0 x h), twisting by
+    theta gives x cos(theta) + y sin(theta) = c, so theta = atan2(y, x) + acos(c / r),
+    r = |(x, y)| (the + branch bends the hinge the natural way). This stays exact for a rest limb
+    that is not perfectly straight, where the plain limb-plane normal is off by many degrees.
     """
     r, m, e = (_LIMB_IDX[ks, i] for i in range(3))
     upper = joints[:, m] - joints[:, r]
-    lower = joints[:, e] - joints[:, m]
-    normal = cross(upper, lower)
-    bend = np.arctan2(np.linalg.norm(normal, axis=-1), np.sum(upper * lower, axis=-1))
-    n_loc = np.einsum("nkji,nkj->nki", swing_glob, normalize(normal))
-    h0, d0 = info.limb_hinges[ks], info.limb_dirs[ks]
-    angle = np.arctan2(np.sum(cross(h0, n_loc) * d0, axis=-1), np.sum(n_loc * h0, axis=-1))
+    lower = normalize(joints[:, e] - joints[:, m])
+    bend = np.arccos(np.clip(dot(normalize(upper), lower), -1.0, 1.0))
+    s_loc = np.einsum("nkji,nkj->nki", swing_glob, lower)
+    x = dot(s_loc, info.limb_hinges[ks])
+    y = dot(s_loc, info.limb_binormals[ks])
+    radius = np.sqrt(x * x + y * y)
+    angle = np.arctan2(y, x) + np.arccos(np.clip(info.limb_rest_c[ks] / np.maximum(radius, 1e-12), -1.0, 1.0))
     weight = np.clip((bend - STRAIGHT_LO) / (STRAIGHT_HI - STRAIGHT_LO), 0.0, 1.0)
     return angle, weight
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _plan() -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Per tree level: swing joints, their parents, their children, limb columns, limb numbers."""
+    plan = []
+    for level in LEVELS:
+        js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
+        ks = np.array([_LIMB_OF.get(int(j), -1) for j in js], dtype=np.int64)
+        sel = np.flatnonzero(ks >= 0)
+        cs = np.array([CHILDREN[j][0] for j in js], dtype=np.int64)
+        plan.append((js, PARENTS[js].astype(np.int64), cs, sel, ks[sel]))
+    return tuple(plan)
+
+
+_PLAN = _plan()
+_LEAVES = np.array([j for j in range(NUM_JOINTS) if not CHILDREN[j]], dtype=np.int64)
 
 
 def solve_globals(
@@ -138,37 +163,32 @@ def solve_globals(
     """
     n = joints.shape[0]
     glob = np.empty((n, NUM_JOINTS, 3, 3))
-    loc = np.empty((n, NUM_JOINTS, 3, 3))
-    prev = np.zeros(len(LIMBS)) if twist is None else np.asarray(twist, dtype=np.float64).copy()
-    for level, (js, cs, d0) in zip(LEVELS, info.swing):
-        for j in level:
-            if j in _FRAMED:
+    prev = np.zeros(len(LIMBS)) if twist is None else np.array(twist, dtype=np.float64)
+    for level, (js, ps, cs, sel, ks) in zip(LEVELS, _PLAN):
+        for j in _FRAMED:
+            if j in level:
                 a0, a1, b0, b1 = _FRAMED[j]
                 f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
                 glob[:, j] = f @ info.frames[j].T
-            elif not CHILDREN[j]:
-                glob[:, j] = glob[:, PARENTS[j]]
-        if len(js):
-            gp = glob[:, PARENTS[js]]
-            d = joints[:, cs] - joints[:, js]
-            d_loc = np.einsum("nkji,nkj->nki", gp, d)
-            local = rotation_between(np.broadcast_to(d0, d_loc.shape), d_loc)
-            g = gp @ local
-            ks = np.array([_LIMB_OF.get(int(j), -1) for j in js])
-            if np.any(ks >= 0):
-                sel = np.flatnonzero(ks >= 0)
-                angle, weight = _limb_twist(joints, g[:, sel], info, ks[sel])
-                # Sequential filter: the plane's twist where the limb is bent, the previous
-                # frame's where it is straight (so batch and frame-by-frame agree).
-                out = np.empty_like(angle)
-                p = prev[ks[sel]]
-                for t in range(n):
-                    p = _wrap(p + weight[t] * _wrap(angle[t] - p))
-                    out[t] = p
-                prev[ks[sel]] = p
-                twist_m = axis_angle_matrix(np.broadcast_to(info.limb_dirs[ks[sel]], out.shape + (3,)), out)
-                g[:, sel] = g[:, sel] @ twist_m
-            glob[:, js] = g
+        if not len(js):
+            continue
+        gp = glob[:, ps]
+        d_loc = np.einsum("nkji,nkj->nki", gp, joints[:, cs] - joints[:, js])
+        g = gp @ rotation_between(info.swing_dirs[js], d_loc)
+        if len(sel):
+            angle, weight = _limb_twist(joints, g[:, sel], info, ks)
+            # Sequential filter: the plane's twist where the limb is bent, the previous frame's
+            # where it is straight (so batch and frame-by-frame agree).
+            out = np.empty_like(angle)
+            p = prev[ks]
+            for t in range(n):
+                p = _wrap(p + weight[t] * _wrap(angle[t] - p))
+                out[t] = p
+            prev[ks] = p
+            g[:, sel] = g[:, sel] @ axis_angle_matrix(info.limb_dirs[ks], out)
+        glob[:, js] = g
+    glob[:, _LEAVES] = glob[:, PARENTS[_LEAVES]]
+    loc = np.empty_like(glob)
     loc[:, 0] = glob[:, 0]
     loc[:, 1:] = np.swapaxes(glob[:, PARENTS[1:]], -1, -2) @ glob[:, 1:]
     return glob, loc, prev

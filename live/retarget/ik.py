@@ -11,33 +11,38 @@ from __future__ import annotations
 import numpy as np
 
 _EPS = 1e-12
+# Levi-Civita symbol: one einsum against it replaces np.cross / a stacked skew matrix, which
+# cost 5-10 times more on the few-element arrays of a single frame.
+_LC = np.zeros((3, 3, 3))
+_LC[0, 1, 2] = _LC[1, 2, 0] = _LC[2, 0, 1] = 1.0
+_LC[0, 2, 1] = _LC[2, 1, 0] = _LC[1, 0, 2] = -1.0
+
+
+def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (..., 3) arrays -> (...)."""
+    return np.einsum("...i,...i->...", a, b)
 
 
 def normalize(v: np.ndarray) -> np.ndarray:
     """(..., 3) -> unit vectors (zero vectors stay zero)."""
-    n = np.sqrt(np.sum(v * v, axis=-1, keepdims=True))
-    return v / np.maximum(n, _EPS)
+    return v / np.maximum(np.sqrt(dot(v, v)), _EPS)[..., None]
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products of (..., 3) arrays (np.cross costs several times more on small arrays)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    """Cross products of (..., 3) arrays (broadcasting)."""
+    return np.einsum("ijk,...j,...k->...i", _LC, a, b)
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x."""
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
-    o = np.zeros_like(x)
-    return np.stack([o, -z, y, z, o, -x, -y, x, o], axis=-1).reshape(v.shape[:-1] + (3, 3))
+    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x (skew(v) @ u == cross(v, u))."""
+    return np.einsum("ijk,...k->...ij", -_LC, v)
 
 
 def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit axes (..., 3) and angles (...) in radians -> rotation matrices (..., 3, 3) (Rodrigues)."""
-    k = skew(axis)
     a = np.asarray(angle)[..., None, None]
-    return np.eye(3) + np.sin(a) * k + (1.0 - np.cos(a)) * (k @ k)
+    c = np.cos(a)
+    return c * np.eye(3) + np.sin(a) * skew(axis) + (1.0 - c) * (axis[..., :, None] * axis[..., None, :])
 
 
 def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -49,11 +54,11 @@ def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     u = normalize(np.asarray(u, dtype=np.float64))
     v = normalize(np.asarray(v, dtype=np.float64))
     c = cross(u, v)
-    d = np.sum(u * v, axis=-1)
-    k = skew(c)
+    d = dot(u, v)
     opposite = d < -1.0 + 1e-9
+    # Rodrigues with sin = |c|, cos = d: R = d I + [c]x + c c^T / (1 + d).
     scale = 1.0 / np.where(opposite, 1.0, 1.0 + d)
-    r = np.eye(3) + k + (k @ k) * scale[..., None, None]
+    r = d[..., None, None] * np.eye(3) + skew(c) + (c[..., :, None] * c[..., None, :]) * scale[..., None, None]
     if np.any(opposite):
         ortho = cross(u, np.array([1.0, 0.0, 0.0]))
         small = np.linalg.norm(ortho, axis=-1) < 1e-6
@@ -112,3 +117,41 @@ def two_bone_ik(
     r2 = rotation_between(np.einsum("...ij,...j->...i", r0, end), target - a)
     upper = r2 @ r0
     return upper, upper @ r1
+
+
+def apply_limb_ik(
+    glob: np.ndarray,
+    loc: np.ndarray,
+    pos: np.ndarray,
+    offsets: np.ndarray,
+    limbs: np.ndarray,
+    hinges: np.ndarray,
+    targets: np.ndarray,
+    children: tuple[tuple[int, ...], ...],
+    parents: np.ndarray,
+) -> None:
+    """Pose limbs of one frame so their end joints reach targets, in place.
+
+    glob, loc (22, 3, 3) global and local rotations; pos (22, 3) joints; offsets (22, 3) rest
+    offsets; limbs (K, 3) joint indices (root, middle, end); hinges (K, 3) rest hinge axes of the
+    middle joints; targets (K, 3). The end joints keep their world orientation (a locked foot
+    keeps its angle to the floor) and their descendants move rigidly with them.
+    """
+    r, m, e = limbs[:, 0], limbs[:, 1], limbs[:, 2]
+    hint = np.einsum("kij,kj->ki", glob[r], hinges)
+    upper, lower = two_bone_ik(pos[r], pos[m], pos[e], targets, hint)
+    g_r = upper @ glob[r]
+    g_m = lower @ glob[m]
+    old_e = pos[e].copy()
+    pos[m] = pos[r] + np.einsum("kij,kj->ki", g_r, offsets[m])
+    pos[e] = pos[m] + np.einsum("kij,kj->ki", g_m, offsets[e])
+    glob[r], glob[m] = g_r, g_m
+    loc[r] = np.swapaxes(glob[parents[r]], -1, -2) @ g_r
+    loc[m] = np.swapaxes(g_r, -1, -2) @ g_m
+    loc[e] = np.swapaxes(g_m, -1, -2) @ glob[e]
+    for k, end in enumerate(e):
+        stack = list(children[end])
+        while stack:
+            c = stack.pop()
+            pos[c] += pos[end] - old_e[k]
+            stack.extend(children[c])

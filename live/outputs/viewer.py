@@ -1,0 +1,245 @@
+"""Live 3D viewer output with Rerun (the optional ``viewer`` extra: rerun-sdk).
+
+``RerunSink`` logs, per frame, on the timelines ``sensor_time`` (seconds of the host monotonic
+clock) and ``frame``:
+
+    world                      right-handed, +Y up (static)
+    world/camera               the depth camera pose (Transform3D) and, with intrinsics, a Pinhole
+    world/depth                the depth cloud in the world frame (Points3D, decimated)
+    world/performer/joints     the performer's 22 joints, coloured by confidence (Points3D)
+    world/performer/bones      its bones (LineStrips3D, one strip per BONES pair)
+    world/avatar/joints|bones  the posed avatar's skeleton
+    world/avatar/mesh          its skinned mesh (Mesh3D), when AvatarPose.vertices and faces exist
+    latency/<stage>            per-stage milliseconds (Scalars)
+
+Modes: "spawn" starts the native viewer, "web" serves the web viewer and its gRPC proxy on
+127.0.0.1 only (a `rerun --serve-web --bind 127.0.0.1` process this sink owns and stops at
+close), "save" writes an .rrd file to ``path``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+from live.depth import points_to_world
+from live.errors import UserInputError
+from live.frames import FrameResult
+from live.outputs.raster import vertex_normals
+from live.skeleton import BONES, JOINT_NAMES
+
+log = logging.getLogger(__name__)
+
+MODES = ("spawn", "web", "save")
+_BONE_PAIRS = np.array(BONES, dtype=np.int64)
+# RGB: performer's left warm, right cool, centre light grey.
+_BONE_RGB = np.array(
+    [(255, 160, 60) if JOINT_NAMES[c].startswith("left") else (60, 160, 255) if JOINT_NAMES[c].startswith("right") else (220, 220, 220)
+     for _, c in BONES],
+    dtype=np.uint8,
+)
+
+
+def import_rerun():
+    """The rerun module, or a UserInputError naming the extra to install."""
+    try:
+        import rerun as rr
+    except ImportError as e:
+        raise UserInputError("the viewer needs rerun-sdk: install livecap[viewer]") from e
+    return rr
+
+
+def rerun_binary() -> str:
+    """Path of the rerun viewer executable. The rerun_cli package's binary is preferred to the
+    `rerun` console script, which is a Python wrapper that would outlive a terminate()."""
+    try:
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).with_name("rerun")
+        if binary.exists():
+            return str(binary)
+    except ImportError:
+        pass
+    found = shutil.which("rerun")
+    if found is None:
+        raise UserInputError("the 'rerun' command was not found: install livecap[viewer]")
+    return found
+
+
+def _wait_for_port(port: int, proc: subprocess.Popen, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise UserInputError(f"the rerun web viewer exited at start (code {proc.returncode})")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)  # waiting for another process to listen: nothing to wait on but time
+    raise UserInputError(f"the rerun web viewer did not listen on 127.0.0.1:{port} within {timeout_s:.0f} s")
+
+
+class RerunSink:
+    """Logs FrameResults to Rerun. Never raises from send(); errors are counted and logged.
+
+    mode: "spawn" | "web" | "save"; path: the .rrd file for "save". avatar_faces (F, 3): the
+    avatar mesh's triangles (the mesh is logged only with them). max_points: the depth cloud is
+    decimated (fixed stride) to at most this many points per frame.
+    """
+
+    def __init__(
+        self,
+        mode: str = "spawn",
+        path: str | Path | None = None,
+        avatar_faces: np.ndarray | None = None,
+        max_points: int = 60_000,
+        web_port: int = 9090,
+        grpc_port: int = 9876,
+        application_id: str = "livecap",
+    ) -> None:
+        if mode not in MODES:
+            raise UserInputError(f"unknown viewer mode {mode!r}: use one of {', '.join(MODES)}")
+        if mode == "save" and path is None:
+            raise UserInputError("viewer mode 'save' needs a path for the .rrd file")
+        rr = import_rerun()
+        self._rr = rr
+        self.mode = mode
+        self.path = None if path is None else Path(path)
+        self._faces = None if avatar_faces is None else np.asarray(avatar_faces, dtype=np.uint32)
+        self._max_points = int(max_points)
+        self._proc: subprocess.Popen | None = None
+        self._last_camera: tuple | None = None
+        self.frames = 0
+        self.errors = 0
+        self.url: str | None = None
+        self._rec = rr.RecordingStream(application_id)
+        if mode == "save":
+            if not self.path.parent.exists():
+                raise UserInputError(f"folder {self.path.parent} does not exist")
+            self._rec.save(self.path)
+        elif mode == "spawn":
+            self._rec.spawn(connect=True)
+        else:
+            self._start_web(web_port, grpc_port)
+        self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
+
+    def _start_web(self, web_port: int, grpc_port: int) -> None:
+        # The SDK's own serve_grpc/serve_web_viewer listen on every interface; the CLI takes
+        # --bind, so the viewer is reachable from this machine only.
+        cmd = [rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port),
+               "--web-viewer-port", str(web_port)]
+        # Its own process group, so that stopping it also stops anything it started.
+        self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                      start_new_session=True)
+        try:
+            _wait_for_port(grpc_port, self._proc, timeout_s=15.0)
+        except UserInputError:
+            self._stop_web()
+            raise
+        self._rec.connect_grpc(f"rerun+http://127.0.0.1:{grpc_port}/proxy")
+        self.url = f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp://127.0.0.1:{grpc_port}/proxy"
+        log.info("rerun web viewer: %s", self.url)
+
+    def _stop_web(self) -> None:
+        if self._proc is None:
+            return
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(self._proc.pid, sig)  # the group this sink created, by its id
+            except ProcessLookupError:
+                break
+            try:
+                self._proc.wait(timeout=5)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        self._proc = None
+
+    def send(self, result: FrameResult) -> None:
+        if self._rec is None:
+            return
+        try:
+            self._log(result)
+            self.frames += 1
+        except Exception as e:  # a sink must never take the pipeline down
+            self.errors += 1
+            if self.errors == 1 or self.errors % 100 == 0:
+                log.warning("rerun sink: %s (%d errors so far)", e, self.errors)
+
+    def _log(self, result: FrameResult) -> None:
+        rr, rec = self._rr, self._rec
+        rec.set_time("sensor_time", duration=result.t_ns * 1e-9)
+        rec.set_time("frame", sequence=self.frames)
+        depth = result.depth
+        if depth is not None:
+            self._log_camera(depth)
+            pts = depth.cloud()
+            if len(pts) > self._max_points:
+                pts = pts[:: int(np.ceil(len(pts) / self._max_points))]
+            rec.log("world/depth", rr.Points3D(points_to_world(pts, depth.camera_to_world), radii=0.004,
+                                               colors=(170, 170, 170)))
+        if result.skeleton is not None:
+            conf = np.clip(np.asarray(result.skeleton.confidence, dtype=np.float64), 0.0, 1.0)
+            colours = np.stack([255 * (1 - conf), 255 * conf, np.zeros_like(conf)], -1).astype(np.uint8)
+            self._log_skeleton("world/performer", result.skeleton.joints, colours)
+        avatar = result.avatar
+        if avatar is not None:
+            if avatar.joints is not None:
+                self._log_skeleton("world/avatar", avatar.joints, (255, 255, 255))
+            if avatar.vertices is not None and self._faces is not None:
+                v = np.asarray(avatar.vertices, dtype=np.float32)
+                rec.log("world/avatar/mesh", rr.Mesh3D(vertex_positions=v, triangle_indices=self._faces,
+                                                        vertex_normals=vertex_normals(v, self._faces),
+                                                        albedo_factor=(0.85, 0.72, 0.62, 1.0)))
+        for stage, ms in result.latency_ms.items():
+            rec.log(f"latency/{stage}", rr.Scalars(float(ms)))
+
+    def _log_skeleton(self, entity: str, joints: np.ndarray, colours) -> None:
+        rr = self._rr
+        j = np.asarray(joints, dtype=np.float32)
+        self._rec.log(f"{entity}/joints", rr.Points3D(j, radii=0.02, colors=colours))
+        self._rec.log(f"{entity}/bones", rr.LineStrips3D(j[_BONE_PAIRS], radii=0.008, colors=_BONE_RGB))
+
+    def _log_camera(self, depth) -> None:
+        rr = self._rr
+        m = np.asarray(depth.camera_to_world, dtype=np.float64)
+        key = (m.tobytes(), None if depth.intrinsics is None else np.asarray(depth.intrinsics).tobytes())
+        if key == self._last_camera:  # a fixed camera is logged once, not every frame
+            return
+        self._last_camera = key
+        self._rec.log("world/camera", rr.Transform3D(translation=m[:3, 3], mat3x3=m[:3, :3]))
+        if depth.intrinsics is not None:
+            k = np.asarray(depth.intrinsics, dtype=np.float64)
+            if depth.depth_mm is not None:
+                h, w = depth.depth_mm.shape
+            else:
+                w, h = 2 * (k[0, 2] + 0.5), 2 * (k[1, 2] + 0.5)
+            self._rec.log("world/camera", rr.Pinhole(image_from_camera=k, resolution=[w, h],
+                                                     camera_xyz=rr.ViewCoordinates.RDF))
+
+    def close(self) -> None:
+        if self._rec is None:
+            return
+        try:
+            self._rec.flush()
+            self._rec.disconnect()
+        except Exception as e:
+            self.errors += 1
+            log.warning("rerun sink: closing: %s", e)
+        finally:
+            self._rec = None
+            self._stop_web()
+
+    def __enter__(self) -> RerunSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,147 @@
+"""The online analytic retargeting stage: source skeletons or rotations -> avatar poses.
+
+Per frame: rotations from the source joints (live/retarget/analytic.py, limb twists carried from
+frame to frame), copied onto the target body with the root scaled by the leg-length ratio, then
+optional hand IK, foot locking and floor clearance by two-bone IK. Everything runs on rotation
+matrices of one frame; quaternions are made once at the end.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from live.errors import UserInputError
+from live.frames import AvatarPose, GroundTruth, SkeletonFrame
+from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, leg_ratio, solve_globals
+from live.retarget.contacts import FEET, ContactDetector, ContactThresholds, FootLock, floor_lift
+from live.retarget.ik import apply_limb_ik
+from live.rotations import matrix_to_quat, quat_to_matrix
+from live.skeleton import CHILDREN, NUM_JOINTS, PARENTS
+
+_LEGS = np.array([limb[:3] for limb in LIMBS[:2]], dtype=np.int64)
+_ARMS = np.array([limb[:3] for limb in LIMBS[2:]], dtype=np.int64)
+_LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)
+_ARM_HINGES = np.array([limb[3] for limb in LIMBS[2:]], dtype=np.float64)
+
+
+class AnalyticRetargeter:
+    """Stateful, frame-by-frame retargeter from a source body to a target body.
+
+    source_rest, target_rest: (22, 3) T-poses. foot_lock: hold feet in contact still and keep
+    feet above y = 0 (floor clearance alone with ``floor=True, foot_lock=False``). hand_ik: wrists
+    reach the source's wrist positions relative to the pelvis, scaled by the leg-length ratio.
+    fps: frame rate assumed when ``step`` is not given ``dt``.
+    """
+
+    def __init__(
+        self,
+        source_rest: np.ndarray,
+        target_rest: np.ndarray,
+        *,
+        foot_lock: bool = True,
+        hand_ik: bool = False,
+        floor: bool = True,
+        fps: float = 30.0,
+        blend_frames: int = 4,
+        thresholds: ContactThresholds = ContactThresholds(),
+    ):
+        self.source = RestInfo.of(source_rest)
+        self.target = RestInfo.of(target_rest)
+        self.ratio = leg_ratio(self.source.rest_joints, self.target.rest_joints)
+        self.foot_lock = foot_lock
+        self.hand_ik = hand_ik
+        self.floor = floor
+        self.dt = 1.0 / fps
+        self.detector = ContactDetector(self.target.rest_joints, thresholds)
+        self.locker = FootLock(self.target.rest_joints, blend_frames=blend_frames)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the motion so far (limb twists, contacts, locks, last timestamp)."""
+        self.twist = np.zeros(len(LIMBS))
+        self.detector.reset()
+        self.locker.reset()
+        self.contact = np.zeros(2, dtype=bool)
+        self._last_t_ns: int | None = None
+
+    def step(
+        self, pose: np.ndarray, root: np.ndarray | None = None, dt: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Retarget one frame.
+
+        pose: source joints (22, 3) world metres, or local rotations (22, 4) with ``root`` (3,).
+        Returns (root (3,), rotations (22, 4), joints (22, 3)) of the target body.
+        """
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape == (NUM_JOINTS, 3):
+            src = pose[None]
+            _, loc, self.twist = solve_globals(src, self.source, self.twist)
+            src_root = pose[0]
+        elif pose.shape == (NUM_JOINTS, 4):
+            if root is None:
+                raise UserInputError("rotations need a root position")
+            src_root = np.asarray(root, dtype=np.float64)
+            loc = quat_to_matrix(pose)[None]
+            src = None
+        else:
+            raise UserInputError(f"a frame is (22, 3) joints or (22, 4) rotations, got {pose.shape}")
+        root_t = src_root * self.ratio
+        glob, pos = fk_matrices(loc, root_t[None], self.target.offsets)
+        glob, loc, pos = glob[0], loc[0].copy(), pos[0]
+        if self.hand_ik:
+            if src is None:
+                _, src = fk_matrices(quat_to_matrix(pose)[None], src_root[None], self.source.offsets)
+            wrists = root_t + (src[0, _ARMS[:, 2]] - src_root) * self.ratio
+            apply_limb_ik(glob, loc, pos, self.target.offsets, _ARMS, _ARM_HINGES, wrists, CHILDREN, PARENTS)
+        if self.foot_lock or self.floor:
+            self._place_feet(glob, loc, pos, self.dt if dt is None else dt)
+        return root_t, matrix_to_quat(loc), pos
+
+    def _place_feet(self, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, dt: float) -> None:
+        ankles = pos[FEET[:, 0]]
+        targets = ankles
+        if self.foot_lock:
+            self.contact = self.detector.update(ankles, dt)
+            targets = self.locker.update(ankles, self.contact)
+        if self.floor:
+            targets = floor_lift(targets, pos[FEET[:, 1]] - ankles)
+        if np.max(np.abs(targets - ankles)) > 1e-7:
+            apply_limb_ik(glob, loc, pos, self.target.offsets, _LEGS, _LEG_HINGES, targets, CHILDREN, PARENTS)
+
+    def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
+        """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
+        dt = None
+        if self._last_t_ns is not None and frame.t_ns > self._last_t_ns:
+            dt = (frame.t_ns - self._last_t_ns) * 1e-9
+        self._last_t_ns = frame.t_ns
+        if isinstance(frame, SkeletonFrame):
+            root, rot, joints = self.step(frame.joints, dt=dt)
+        else:
+            root, rot, joints = self.step(frame.rotations, frame.root, dt=dt)
+        return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
+
+
+def retarget_motion(
+    source_rest: np.ndarray,
+    target_rest: np.ndarray,
+    joints: np.ndarray | None = None,
+    rotations: np.ndarray | None = None,
+    root: np.ndarray | None = None,
+    fps: float = 30.0,
+    **options,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offline batch: a whole motion through a fresh AnalyticRetargeter (same result as online).
+
+    Give joints T x 22 x 3, or rotations T x 22 x 4 with root T x 3. options: foot_lock, hand_ik,
+    floor, blend_frames, thresholds. Returns (root T x 3, rotations T x 22 x 4, joints T x 22 x 3).
+    """
+    rt = AnalyticRetargeter(source_rest, target_rest, fps=fps, **options)
+    if joints is not None:
+        frames = [rt.step(j) for j in np.asarray(joints, dtype=np.float64)]
+    elif rotations is not None and root is not None:
+        frames = [rt.step(q, r) for q, r in zip(np.asarray(rotations), np.asarray(root))]
+    else:
+        raise UserInputError("retarget_motion needs joints, or rotations and root")
+    if not frames:
+        return np.zeros((0, 3)), np.zeros((0, NUM_JOINTS, 4)), np.zeros((0, NUM_JOINTS, 3))
+    return tuple(np.stack(x) for x in zip(*frames))  # type: ignore[return-value]

@@ -1,0 +1,1 @@
+"""Online skeleton regression from depth: person finding, the ONNX model, temporal filtering."""

@@ -1,0 +1,227 @@
+"""Synthetic sessions with exact ground truth: a motion on a body, seen by a virtual camera.
+
+``livecap synth --motion CLIP.bvh --body SPEC --out S.mcap`` writes a session exactly like a
+recorded one (depth stream, optionally a serial IMU stream) plus ground-truth channels: the 22
+world joints and local rotations of the body actually rendered, per frame, and the body itself
+(attachment ``body.npz``). Same arguments and seed -> same bytes.
+
+The body is posed with the motion's local rotations (identical meaning on any body) and the
+root translation scaled by the leg-length ratio (CONVENTIONS.md). The camera looks at the centre
+of the performance area.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from live.body import Body, load_body
+from live.errors import UserInputError
+from live.frames import DepthFrame, GroundTruth
+from live.kinematics import forward_kinematics
+from live.rig_mapping import Motion, load_motion, resample
+from live.skeleton import pelvis_height
+from live.skinning import lbs
+from live.sources import StreamInfo
+from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
+
+#: Session timestamps start here (1 s), so that replayed files never depend on the wall clock.
+T0_NS = 1_000_000_000
+#: A fixed "start wall time" for synthetic sessions (2026-01-01T00:00:00Z): same seed, same bytes.
+SYNTH_WALL_TIME_NS = 1_767_225_600_000_000_000
+
+
+@dataclass(frozen=True)
+class CameraPlacement:
+    """Where the camera stands relative to the centre of the performance area (metres, radians).
+    yaw 0 = in front of a performer facing +z."""
+
+    distance: float = 3.0
+    height: float = 1.2
+    yaw: float = 0.0
+    pitch: float | None = None
+
+    @staticmethod
+    def random(rng: np.random.Generator) -> CameraPlacement:
+        return CameraPlacement(distance=float(rng.uniform(1.5, 4.0)), height=float(rng.uniform(0.6, 1.9)),
+                               yaw=float(rng.uniform(-np.pi, np.pi)))
+
+
+def pose_motion_on_body(motion: Motion, body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """(root (T,3), joints (T,22,3)) of the body performing the motion: same local rotations,
+    root translation scaled by the leg-length ratio (body pelvis height / motion's)."""
+    ratio = pelvis_height(body.rest_joints) / max(pelvis_height(motion.rest_joints), 1e-6)
+    root = np.asarray(motion.root, np.float64) * ratio
+    joints, _ = forward_kinematics(motion.rotations, root, body.rest_joints)
+    return root, joints
+
+
+def performance_center(joints: np.ndarray) -> np.ndarray:
+    """Centre of the area a motion covers (pelvis x/z midrange), at 1 m height."""
+    pelvis = joints[:, 0]
+    c = 0.5 * (pelvis.min(axis=0) + pelvis.max(axis=0))
+    return np.array([c[0], 1.0, c[2]])
+
+
+@dataclass
+class SyntheticScene:
+    """A motion on a body in front of a virtual camera; ``frame(i)`` renders frame i."""
+
+    motion: Motion
+    body: Body
+    camera: VirtualDepthCamera
+    root: np.ndarray
+    joints: np.ndarray
+
+    @classmethod
+    def build(cls, motion: Motion, body: Body, *, camera: str = "oak-d", fps: float | None = None,
+              placement: CameraPlacement | None = None, noise: NoiseModel | None = None,
+              seed: int = 0) -> SyntheticScene:
+        preset = get_preset(camera)
+        motion = resample(motion, fps or preset.fps)
+        root, joints = pose_motion_on_body(motion, body)
+        placement = placement or CameraPlacement()
+        center = performance_center(joints)
+        c2w = look_at_camera(placement.distance, placement.height, placement.yaw, placement.pitch,
+                             target=tuple(center))
+        cam = VirtualDepthCamera(preset, c2w, noise=noise if noise is not None else NoiseModel(), seed=seed)
+        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints)
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.root)
+
+    def vertices(self, i: int) -> np.ndarray:
+        return lbs(self.body.vertices, self.body.weights, self.body.rest_joints,
+                   self.motion.rotations[i], self.root[i])[0]
+
+    def truth(self, i: int, t_ns: int) -> GroundTruth:
+        return GroundTruth(t_ns=t_ns, joints=self.joints[i].astype(np.float32),
+                           rotations=np.asarray(self.motion.rotations[i], np.float32),
+                           root=self.root[i].astype(np.float32))
+
+    def depth(self, i: int, t_ns: int, sensor: str = "cam") -> DepthFrame:
+        depth_mm = self.camera.render(self.vertices(i), self.body.faces)
+        return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=self.camera.camera_to_world,
+                          depth_mm=depth_mm, intrinsics=self.camera.intrinsics)
+
+    def depth_stream(self, sensor: str = "cam") -> StreamInfo:
+        p = self.camera.preset
+        return StreamInfo(sensor, "depth", {
+            "intrinsics": self.camera.intrinsics.tolist(), "camera_to_world": self.camera.camera_to_world.tolist(),
+            "width": p.width, "height": p.height, "fps": float(self.motion.fps), "camera": p.name,
+            "simulated": True})
+
+
+def body_npz_bytes(body: Body) -> bytes:
+    """The body-file contract as bytes (numpy only, no pickles)."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, vertices=body.vertices.astype(np.float32), faces=body.faces.astype(np.int32),
+                        rest_joints=body.rest_joints.astype(np.float32), weights=body.weights.astype(np.float32),
+                        parents=np.asarray(body.parents, np.int32), name=np.array(body.name),
+                        phenotype=np.array(json.dumps(body.phenotype or {})))
+    return buf.getvalue()
+
+
+@dataclass
+class SynthOptions:
+    motion: str
+    body: str = "performer"
+    camera: str = "oak-d"
+    seconds: float | None = None
+    fps: float | None = None
+    seed: int = 0
+    imu: str | None = None
+    start_s: float = 0.0
+    placement: CameraPlacement = field(default_factory=CameraPlacement)
+    noise: bool = True
+
+
+def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int], None] | None = None) -> dict:
+    """Write a synthetic session; returns a summary dict."""
+    from live.session import SessionWriter
+
+    motion = load_motion(opts.motion)
+    body = load_body(opts.body)
+    scene = SyntheticScene.build(motion, body, camera=opts.camera, fps=opts.fps, placement=opts.placement,
+                                 noise=NoiseModel() if opts.noise else NoiseModel.none(), seed=opts.seed)
+    fps = float(scene.motion.fps)
+    first = int(round(opts.start_s * fps))
+    last = scene.num_frames if opts.seconds is None else min(scene.num_frames, first + int(round(opts.seconds * fps)))
+    if last <= first:
+        raise UserInputError(f"the motion has {scene.num_frames} frames at {fps:g} fps: nothing to render "
+                             f"from {opts.start_s:g} s")
+    streams = [scene.depth_stream(), StreamInfo("gt", "gt", {"body": body.name, "motion": Path(opts.motion).name})]
+    suit = None
+    if opts.imu:
+        from sim.imu_stream import ImuStreamer
+
+        suit = ImuStreamer(scene, protocol=opts.imu, seed=opts.seed)
+        streams.append(suit.stream_info())
+    extra = {"synthetic": {"motion": Path(opts.motion).name, "body": opts.body, "camera": opts.camera,
+                           "seed": opts.seed, "placement": asdict(opts.placement), "noise": opts.noise}}
+    with SessionWriter(out, streams, extra=extra, start_wall_time_ns=SYNTH_WALL_TIME_NS) as writer:
+        writer.attach("body.npz", body_npz_bytes(body), create_time_ns=SYNTH_WALL_TIME_NS)
+        for k, i in enumerate(range(first, last)):
+            t_ns = T0_NS + int(round(k * 1e9 / fps))
+            if suit is not None:
+                for packet in suit.packets_until(i, t_ns):
+                    writer.write(packet)
+            writer.write(scene.truth(i, t_ns))
+            writer.write(scene.depth(i, t_ns))
+            if progress is not None:
+                progress(k + 1, last - first)
+    return {"frames": last - first, "fps": fps, "body": body.name, "camera": opts.camera, "out": str(out)}
+
+
+class SimulatedSource:
+    """``sim:CLIP.bvh``: the virtual camera rendering a motion live (timed like a real camera
+    unless speed is None), emitting depth frames and their ground truth."""
+
+    def __init__(self, motion_path: str, *, body: str = "performer", camera: str = "oak-d",
+                 speed: float | None = 1.0, seed: int = 0, name: str = "sim", loop: bool = False):
+        path = Path(motion_path)
+        if not path.is_file():
+            raise UserInputError(f"no such motion file: {path}")
+        self.scene = SyntheticScene.build(load_motion(path), load_body(body), camera=camera, seed=seed)
+        self.name = name
+        self.speed = speed
+        self.loop = loop
+        self._counters = {"frames": 0}
+
+    @classmethod
+    def from_spec(cls, target: str, options: dict, speed: float | None = 1.0) -> SimulatedSource:
+        return cls(target, body=options.get("body", "performer"), camera=options.get("camera", "oak-d"),
+                   seed=int(options.get("seed", 0)), speed=speed, loop=options.get("loop", "0") in ("1", "true"))
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return dict(self._counters)
+
+    def streams(self) -> list[StreamInfo]:
+        return [self.scene.depth_stream(self.name), StreamInfo("gt", "gt", {"body": self.scene.body.name})]
+
+    def run(self, emit: Callable[[object], None], stop: threading.Event) -> None:
+        period = 1.0 / self.scene.motion.fps
+        start = time.monotonic()
+        k = 0
+        while not stop.is_set():
+            i = k % self.scene.num_frames
+            if k >= self.scene.num_frames and not self.loop:
+                return
+            if self.speed:
+                delay = start + k * period / self.speed - time.monotonic()
+                if delay > 0 and stop.wait(delay):
+                    return
+            t_ns = time.monotonic_ns()
+            emit(self.scene.truth(i, t_ns))
+            emit(self.scene.depth(i, t_ns, sensor=self.name))
+            self._counters["frames"] += 1
+            k += 1
