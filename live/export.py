@@ -44,11 +44,12 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
             serial[stream.name]["data"].append(frame.raw)
             protocol = stream.meta.get("protocol")
             if protocol:
-                if stream.name not in decoders:
-                    from drivers.serial_source import PacketDecoder
+                from drivers.serial_source import make_parser, packet_from_records
 
-                    decoders[stream.name] = PacketDecoder(protocol, device=stream.name)
-                _append_imu(imu[stream.name], decoders[stream.name].decode(frame))
+                if stream.name not in decoders:
+                    decoders[stream.name] = make_parser(protocol)
+                records = decoders[stream.name].feed(frame.raw)
+                _append_imu(imu[stream.name], packet_from_records(frame.t_ns, stream.name, frame.raw, records))
         elif stream.kind == "imu":
             _append_imu(imu[stream.name], frame)
         elif stream.kind == "gt":

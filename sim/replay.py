@@ -46,12 +46,12 @@ class ReplaySource:
         protocol = stream.meta.get("protocol")
         if protocol is None:
             return packet
-        decoder = self._decoders.get(stream.name)
-        if decoder is None:
-            from drivers.serial_source import PacketDecoder
+        from drivers.serial_source import make_parser, packet_from_records
 
-            decoder = self._decoders[stream.name] = PacketDecoder(protocol, device=stream.name)
-        return decoder.decode(packet)
+        parser = self._decoders.get(stream.name)
+        if parser is None:
+            parser = self._decoders[stream.name] = make_parser(protocol)
+        return packet_from_records(packet.t_ns, stream.name, packet.raw, parser.feed(packet.raw))
 
     def run(self, emit: Callable[[object], None], stop: threading.Event) -> None:
         start_wall = None
