@@ -101,12 +101,15 @@ class LineParser:
 
     Lines longer than ``max_line`` bytes (a lost terminator, binary noise) are discarded up to
     the next newline without buffering them; bad lines are counted, never raised.
+    require_checksum: reject lines without a ``*HH`` suffix (noisy links; a line cut short by a
+    lost byte could otherwise still parse).
     """
 
-    def __init__(self, *, max_line: int = MAX_LINE, frame: str = "enu"):
+    def __init__(self, *, max_line: int = MAX_LINE, frame: str = "enu", require_checksum: bool = False):
         if frame not in FRAMES:
             raise ValueError(f"unknown frame {frame!r}; expected one of {FRAMES}")
         self.max_line = max_line
+        self.require_checksum = require_checksum
         self._to_world = FRAME_TO_WORLD[0x0] if frame == "enu" else _IDENTITY
         self._buf = bytearray()
         self._discarding = False
@@ -166,6 +169,9 @@ class LineParser:
             if expected != line_checksum(line):
                 self.counters["bad_checksum"] += 1
                 return
+        elif self.require_checksum:
+            self.counters["bad_checksum"] += 1
+            return
         try:
             out.append(self._parse(line))
         except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError):

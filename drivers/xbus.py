@@ -32,7 +32,7 @@ from typing import Any, Iterable, Protocol
 import numpy as np
 
 from live.errors import DeviceError, FormatError
-from live.rotations import euler_to_matrix, matrix_to_euler, matrix_to_quat, quat_to_matrix
+from live.rotations import matrix_to_euler, matrix_to_quat, quat_to_matrix
 
 PREAMBLE = 0xFA
 BID_MASTER = 0xFF
@@ -231,18 +231,42 @@ _HANDLERS = _build_handlers()
 _ITEM_HEADER = struct.Struct(">HB")
 
 
+def _matrix_to_quat(v: tuple) -> tuple[float, float, float, float]:
+    """Column-major 3x3 rotation (9 floats) -> quaternion, Shepperd's method in plain floats."""
+    m00, m10, m20, m01, m11, m21, m02, m12, m22 = v
+    tr = m00 + m11 + m22
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        return (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    if m00 > m11 and m00 > m22:
+        s = math.sqrt(1.0 + m00 - m11 - m22) * 2
+        return ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    if m11 > m22:
+        s = math.sqrt(1.0 + m11 - m00 - m22) * 2
+        return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    s = math.sqrt(1.0 + m22 - m00 - m11) * 2
+    return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+
+
+def _euler_to_quat(v: tuple) -> tuple[float, float, float, float]:
+    """(roll, pitch, yaw) degrees, R = Rz(yaw) Ry(pitch) Rx(roll) -> quaternion."""
+    h = math.pi / 360.0  # degrees -> half-angle radians
+    cr, sr = math.cos(v[0] * h), math.sin(v[0] * h)
+    cp, sp = math.cos(v[1] * h), math.sin(v[1] * h)
+    cy, sy = math.cos(v[2] * h), math.sin(v[2] * h)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+_TO_QUAT = {"quat": lambda v: v, "matrix": _matrix_to_quat, "euler": _euler_to_quat}
+
+
 def _orientation_to_world(kind: str, values: tuple, coord: int) -> tuple:
     """Device orientation values -> world quaternion tuple (w, x, y, z)."""
-    if kind == "quat":
-        q = values
-    else:
-        if kind == "matrix":
-            m = np.array(values, dtype=np.float64).reshape(3, 3).T  # column-major on the wire
-        else:
-            roll, pitch, yaw = np.radians(values)
-            m = euler_to_matrix(np.array([yaw, pitch, roll]), "ZYX")
-        q = tuple(matrix_to_quat(m).tolist())
-    return _qmul(FRAME_TO_WORLD[coord], q)
+    try:
+        return _qmul(FRAME_TO_WORLD[coord], _TO_QUAT[kind](values))
+    except (ValueError, ArithmeticError):  # garbage posing as a matrix (sqrt < 0, s == 0)
+        raise FormatError(f"MTData2 {kind} is not a rotation") from None
 
 
 def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, int] | None = None
@@ -357,14 +381,15 @@ def parse_output_configuration(data: bytes) -> list[tuple[int, int]]:
 
 # ----------------------------------------------------------------------------- parser
 
-# Non-data messages we accept, with their allowed payload lengths (None: any). A checksum-valid
+# Non-data messages we accept, with their allowed payload lengths. A checksum-valid
 # frame with another MID is most likely garbage that summed to zero, so the parser resyncs past
 # its first byte instead of swallowing the bytes (which may hold real frames).
 _KNOWN_MIDS: dict[int, Any] = {
     MID_REQ_DID: (0,), MID_DEVICE_ID: (4, 8), MID_GOTO_MEASUREMENT: (0,),
     MID_GOTO_MEASUREMENT_ACK: (0,), MID_GOTO_CONFIG: (0,), MID_GOTO_CONFIG_ACK: (0,),
     MID_WAKEUP: (0,), MID_WAKEUP_ACK: (0,), MID_RESET: (0,), MID_RESET_ACK: (0,),
-    MID_ERROR: None, MID_SET_OUTPUT_CONFIGURATION: None, MID_SET_OUTPUT_CONFIGURATION_ACK: None,
+    MID_ERROR: (1,), MID_SET_OUTPUT_CONFIGURATION: range(0, 257, 4),
+    MID_SET_OUTPUT_CONFIGURATION_ACK: range(0, 257, 4),
 }
 
 
@@ -433,8 +458,8 @@ class XbusParser:
                     continue
                 out.append(sample)
             else:
-                allowed = _KNOWN_MIDS.get(mid, ())
-                if mid not in _KNOWN_MIDS or (allowed is not None and length not in allowed):
+                allowed = _KNOWN_MIDS.get(mid)
+                if allowed is None or length not in allowed:
                     c["unknown_mid"] += 1
                     c["skipped_bytes"] += 1
                     pos = start + 1

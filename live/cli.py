@@ -16,6 +16,23 @@ EXIT_USER_ERROR = 2
 
 def _add_replay_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", default="max", help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
+    _add_output_options(p)
+
+
+def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None = None) -> None:
+    p.add_argument("--avatar", default=avatar_default, help="retarget onto this avatar: a body preset, a body .npz, "
+                   "a T-pose mesh or point cloud (OBJ/PLY/GLB), or anny:k=v,... (train extra)")
+    p.add_argument("--retarget", default="analytic", choices=["analytic", "learned"], help="retargeter (default analytic)")
+    p.add_argument("--no-foot-lock", action="store_true", help="do not lock feet in contact with the floor")
+    p.add_argument("--hand-ik", action="store_true", help="hands reach where the performer's hands reach (scaled)")
+    p.add_argument("--model", type=Path, default=None, help="skeleton model (.onnx; default: the shipped one)")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads for the skeleton model (default 1)")
+    p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
+                   "(e.g. 127.0.0.1:39539); off unless given")
+    p.add_argument("--vmc-rate", type=float, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
+    p.add_argument("--viewer", nargs="?", const="spawn", default=None, metavar="spawn|web|save:FILE.rrd",
+                   help="show the live viewer (Rerun; the viewer extra)")
+    p.add_argument("--video", type=Path, default=None, help="also write a rendered video (.mp4)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -31,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "and the result files into --out.")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
     p.add_argument("--session", type=Path, default=None, help="another session to use instead of the bundled one")
-    _add_replay_options(p)
+    p.add_argument("--speed", default="max", help="1.0 = recorded timing, max = as fast as possible (default)")
+    p.add_argument("--no-video", action="store_true", help="skip writing demo.mp4")
+    _add_output_options(p, avatar_default="default")
 
     p = sub.add_parser("replay", help="replay a session or a depth PNG folder through the pipeline",
                        description="Replay SESSION.mcap (or a folder of 16-bit depth PNGs with intrinsics.json) "
@@ -54,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=Path("run_out"), help="folder for stats.json and results")
     p.add_argument("--record", type=Path, default=None, help="also record the sources into this session file")
     p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_output_options(p)
 
     p = sub.add_parser("export", help="export a session's streams as .npz files",
                        description="Write one .npz per stream (gt.npz, depth_<s>.npz, serial_<d>.npz, imu_<d>.npz).")

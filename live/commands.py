@@ -8,8 +8,6 @@ from pathlib import Path
 
 from live.app import DEMO_SESSION, count_trigger_frames, parse_speed, run_pipeline, write_stats
 from live.errors import UserInputError
-from live.results import ResultsWriter
-from live.stages import CloudStage
 
 
 def _replay_source(target: str, speed: float | None):
@@ -25,16 +23,26 @@ def _replay_source(target: str, speed: float | None):
     return ReplaySource(path, speed=speed)
 
 
-def _replay(target: str, out: Path, speed: float | None, quiet: bool) -> dict:
+def _run_options(args, out: Path, video: Path | None = None):
+    from live.assemble import RunOptions
+
+    return RunOptions(out=out, avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
+                      hand_ik=args.hand_ik, model=args.model, threads=args.threads, vmc=args.vmc,
+                      vmc_rate=args.vmc_rate, viewer=args.viewer, video=video or args.video)
+
+
+def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
+    from live.assemble import build
+
+    speed = parse_speed(args.speed)
     source = _replay_source(target, speed)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
-    results = ResultsWriter(out)
-    stages = [CloudStage()]
-    stats = run_pipeline([source], stages, [results], mode="every", progress_total=total,
-                         progress=not quiet)
+    stages, sinks, parts = build(_run_options(args, out, video))
+    stats = run_pipeline([source], stages, sinks, mode="every", progress_total=total, progress=not args.quiet)
     damage = getattr(source, "error", None)
     stats["session_error"] = damage
-    stats["outputs"] = [p.name for p in results.written]
+    stats["accuracy"] = parts["accuracy"].summary()
+    stats["outputs"] = [p.name for p in parts["results"].written] + ([Path(video).name] if video else [])
     write_stats(out, stats)
     if damage:
         print(f"livecap: {damage}", file=sys.stderr)
@@ -47,6 +55,10 @@ def _print_summary(stats: dict) -> None:
         lat = st["latency_ms"]
         if lat.get("count"):
             rows.append((f"{name} p50/p95 ms", f"{lat['p50']:.2f} / {lat['p95']:.2f}"))
+    acc = stats.get("accuracy") or {}
+    if acc.get("frames_scored"):
+        rows.append(("skeleton MPJPE / PA-MPJPE", f"{acc['mpjpe_mm']:.1f} / {acc['pa_mpjpe_mm']:.1f} mm "
+                     f"({acc['frames_scored']} frames with ground truth)"))
     e2e = stats["end_to_end"]["latency_ms"]
     if e2e.get("count"):
         rows.append(("end-to-end p50/p95 ms", f"{e2e['p50']:.2f} / {e2e['p95']:.2f}"))
@@ -59,7 +71,8 @@ def cmd_demo(args) -> int:
     session = args.session or DEMO_SESSION
     if not Path(session).is_file():
         raise UserInputError(f"the demo session is missing: {session} (regenerate it with `livecap synth`, see README)")
-    stats = _replay(str(session), args.out, parse_speed(args.speed), args.quiet)
+    video = None if args.no_video else args.out / "demo.mp4"
+    stats = _replay(str(session), args, args.out, video=video)
     print(f"livecap demo: replayed {Path(session).name}")
     _print_summary(stats)
     print(f"  wrote {args.out / 'stats.json'}" + "".join(f", {args.out / n}" for n in stats["outputs"]))
@@ -67,7 +80,7 @@ def cmd_demo(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    stats = _replay(args.session, args.out, parse_speed(args.speed), args.quiet)
+    stats = _replay(args.session, args, args.out)
     if not args.quiet:
         _print_summary(stats)
     return 0
@@ -88,9 +101,11 @@ def cmd_record(args) -> int:
 
 
 def cmd_run(args) -> int:
+    from live.assemble import build
+
     sources = _open_sources(args.source)
-    results = ResultsWriter(args.out)
-    stats = run_pipeline(sources, [CloudStage()], [results], mode="latest", record=args.record,
+    stages, sinks, _ = build(_run_options(args, args.out))
+    stats = run_pipeline(sources, stages, sinks, mode="latest", record=args.record,
                          seconds=args.seconds, progress=not args.quiet)
     write_stats(args.out, stats)
     _print_summary(stats)
