@@ -16,6 +16,7 @@ matrices (T, J, 3, 3), local quaternions (T, J, 4) as (w, x, y, z).
 from __future__ import annotations
 
 import io
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -136,10 +137,14 @@ def parse_bvh(text: str, *, name: str = "", path: str | None = None,
               scale: float | str = 1.0) -> BvhClip:
     """Parse BVH text (see ``read_bvh``)."""
     where = path or "<bvh>"
-    lines = text.splitlines()
+    # Only the text before the motion rows is split into lines; the rows go to numpy whole.
+    m = re.search(r"^[ \t]*Frame[ \t]+Time[^\n]*\n?", text, re.MULTILINE | re.IGNORECASE)
+    head_end = m.end() if m else len(text)
+    lines = text[:head_end].splitlines()
     skeleton, motion_line = _parse_hierarchy(lines, where)
     frames, frame_time, data_line = _parse_motion_header(lines, motion_line, where)
-    channels = _parse_motion_rows(lines, data_line, frames, skeleton.num_channels, where)
+    channels = _parse_motion_rows(text[head_end:], data_line, frames, skeleton.num_channels,
+                                  where)
     if isinstance(scale, str):
         if scale == "auto":
             scale = guess_scale(skeleton)
@@ -304,11 +309,10 @@ def _parse_motion_header(lines: list[str], motion_line: int, where: str) -> tupl
     return frames, frame_time, i
 
 
-def _parse_motion_rows(lines: list[str], start: int, frames: int, ncols: int,
+def _parse_motion_rows(body: str, start: int, frames: int, ncols: int,
                        where: str) -> np.ndarray:
-    """The MOTION rows as a (T, C) float64 array; fast path in C, slow path only to explain
-    an error (which line, what is wrong)."""
-    body = "\n".join(lines[start:])
+    """The MOTION rows (``body``, starting at 0-based line ``start``) as a (T, C) float64 array;
+    fast path in C, slow path only to explain an error (which line, what is wrong)."""
     try:
         with warnings.catch_warnings():
             # Older numpy warns (newer raises) when it stops early on a bad token.
@@ -320,11 +324,12 @@ def _parse_motion_rows(lines: list[str], start: int, frames: int, ncols: int,
         return values.reshape(frames, ncols)
     # Slow path: find the first offending line.
     row = 0
-    for i in range(start, len(lines)):
-        tok = lines[i].split()
+    lines = body.splitlines()
+    for i, line in enumerate(lines):
+        tok = line.split()
         if not tok:
             continue
-        lineno = i + 1
+        lineno = start + i + 1
         if row >= frames:
             raise FormatError(f"more motion rows than the {frames} frames declared", path=where,
                               line=lineno)
@@ -340,7 +345,8 @@ def _parse_motion_rows(lines: list[str], start: int, frames: int, ncols: int,
         if not np.isfinite(vals).all():
             raise FormatError(f"frame {row} has a NaN or infinite value", path=where, line=lineno)
         row += 1
-    raise FormatError(f"truncated MOTION: {row} of {frames} frames", path=where, line=len(lines))
+    raise FormatError(f"truncated MOTION: {row} of {frames} frames", path=where,
+                      line=start + len(lines))
 
 
 def _is_float(t: str) -> bool:
@@ -414,22 +420,25 @@ def skeleton_forward_kinematics(skeleton: BvhSkeleton, local_rot: np.ndarray,
                                 local_trans: np.ndarray, *, end_sites: bool = False
                                 ) -> tuple[np.ndarray, np.ndarray]:
     """FK from local rotations (T, J, 3, 3) and local translations (T, J, 3)."""
-    t, nj = local_rot.shape[:2]
     ne = len(skeleton.end_parents) if end_sites else 0
-    glob = np.empty((t, nj + ne, 3, 3))
-    pos = np.empty((t, nj + ne, 3))
+    # Per-joint contiguous (T, 3, 3) blocks: strided views of a (T, J, 3, 3) array make
+    # numpy's small-matrix products several times slower.
+    rot = np.ascontiguousarray(np.moveaxis(local_rot, 1, 0))
+    trans = np.ascontiguousarray(np.moveaxis(local_trans, 1, 0))
+    glob: list[np.ndarray] = []
+    pos: list[np.ndarray] = []
     for j, p in enumerate(skeleton.parents):
         if p < 0:
-            glob[:, j] = local_rot[:, j]
-            pos[:, j] = local_trans[:, j]
+            glob.append(rot[j])
+            pos.append(trans[j])
         else:
-            glob[:, j] = glob[:, p] @ local_rot[:, j]
-            pos[:, j] = pos[:, p] + np.einsum("tij,tj->ti", glob[:, p], local_trans[:, j])
+            glob.append(glob[p] @ rot[j])
+            pos.append(pos[p] + np.einsum("tij,tj->ti", glob[p], trans[j]))
     for e in range(ne):
         p = skeleton.end_parents[e]
-        glob[:, nj + e] = glob[:, p]
-        pos[:, nj + e] = pos[:, p] + glob[:, p] @ skeleton.end_offsets[e]
-    return pos, glob
+        glob.append(glob[p])
+        pos.append(pos[p] + glob[p] @ skeleton.end_offsets[e])
+    return np.stack(pos, axis=1), np.stack(glob, axis=1)
 
 
 def rest_positions(skeleton: BvhSkeleton, *, end_sites: bool = False) -> np.ndarray:

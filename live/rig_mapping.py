@@ -32,7 +32,7 @@ from live.bvh import (BvhClip, BvhSkeleton, bvh_forward_kinematics, read_bvh, re
 from live.errors import FormatError
 from live.kinematics import forward_kinematics
 from live.rotations import matrix_to_quat, quat_between, quat_slerp, quat_to_matrix
-from live.skeleton import CHILDREN, JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
+from live.skeleton import CHILDREN, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
 
 Spec = str | tuple[str, str, float]
 
