@@ -78,12 +78,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export", help="export a session's streams as .npz files",
                        description="Write one .npz per stream (gt.npz, depth_<s>.npz, serial_<d>.npz, imu_<d>.npz).")
     p.add_argument("session", type=Path)
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=Path, default=None, help="output folder for the .npz files")
+    p.add_argument("--foxglove", type=Path, default=None, metavar="OUT.mcap",
+                   help="write a Foxglove-ready MCAP (PointCloud, SceneUpdate, FrameTransforms) instead")
+    p.add_argument("--results", type=Path, default=None, help="with --foxglove: a replay's output folder "
+                   "(skeleton.npz, avatar.npz) to include")
+    p.add_argument("--max-points", type=int, default=None, help="with --foxglove: subsample clouds to this many points")
 
     p = sub.add_parser("info", help="describe a session file", description="Print a session's streams, "
                        "message counts, duration and metadata.")
     p.add_argument("session", type=Path)
     p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("render", help="render a session or depth folder to a video",
+                       description="Replay SESSION|FOLDER through the pipeline and write a video: the depth image with "
+                       "the skeleton drawn over it beside the shaded avatar, with timing and confidence captions.")
+    p.add_argument("session", help="a .mcap session or a depth folder")
+    p.add_argument("--out", type=Path, required=True, help="video file to write (.mp4)")
+    p.add_argument("--speed", default="max", help=argparse.SUPPRESS)
+    _add_output_options(p, avatar_default="default")
 
     p = sub.add_parser("synth", help="write a synthetic session (a motion on a body, seen by a virtual camera)",
                        description="Render a BVH motion on a body with the virtual depth camera and write a session "

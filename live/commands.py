@@ -113,6 +113,18 @@ def cmd_run(args) -> int:
 
 
 def cmd_export(args) -> int:
+    if args.foxglove is not None:
+        from live.foxglove import export_foxglove
+
+        res = export_foxglove(args.session, args.foxglove, results_dir=args.results, max_points=args.max_points)
+        print(f"livecap export: {sum(res.messages.values())} Foxglove messages -> {res.path}")
+        if res.skipped:
+            print(f"  not exported (no Foxglove schema): {res.skipped}")
+        if res.error:
+            print(f"livecap export: {res.error}", file=sys.stderr)
+        return 0
+    if args.out is None:
+        raise UserInputError("export needs --out DIR (npz files) or --foxglove OUT.mcap")
     from live.export import export_session
 
     written, damage = export_session(args.session, args.out)
@@ -190,4 +202,15 @@ def cmd_synth(args) -> int:
             bar.close()
     print(f"livecap synth: {summary['frames']} frames at {summary['fps']:g} fps of {Path(args.motion).name} "
           f"on {summary['body']} ({summary['camera']}) -> {args.out}")
+    return 0
+
+
+def cmd_render(args) -> int:
+    import tempfile
+
+    if args.out.suffix.lower() != ".mp4":
+        raise UserInputError(f"--out must be an .mp4 file, not {args.out}")
+    with tempfile.TemporaryDirectory(prefix="livecap-render-") as tmp:
+        stats = _replay(args.session, args, Path(tmp), video=args.out)
+    print(f"livecap render: {stats['frames']} frames -> {args.out}")
     return 0
