@@ -61,7 +61,8 @@ def records_to_arrays(records: Sequence) -> dict[str, np.ndarray | None]:
     if quats is None:
         quats = np.full((len(records), 4), np.nan, dtype=np.float32)
     counters = [r.counter for r in records]
-    counter = None if all(c is None for c in counters) else np.array(
+    # An empty read still gets an (empty) counter array, so consumers can zip the fields.
+    counter = None if counters and all(c is None for c in counters) else np.array(
         [-1 if c is None else c for c in counters], dtype=np.int64)
     return {"sensors": sensors, "quats": quats, "counter": counter,
             "acc": _stack([r.acc for r in records], 3), "gyro": _stack([r.gyro for r in records], 3),
