@@ -36,6 +36,7 @@ import numpy as np
 from live.errors import LivecapError
 
 _INVALID = -1  # slot seq while a slot is empty, evicted or being rewritten
+_NO_READER = 2**62  # the blocking floor when no reader is registered
 
 
 class RingClosedError(LivecapError):
@@ -81,7 +82,11 @@ class _RingBase:
         self._last_t = -(2**63)
         self._closed = False
         self._cond = threading.Condition(threading.Lock())
-        self._waiters = 0  # readers inside a wait; the writer notifies only when > 0
+        # Wake-up flags, so that the hot paths skip the condition variable: the writer notifies
+        # only when a reader waits and was not notified since it began waiting; a reader
+        # notifies only while the blocking writer waits, and then once.
+        self._waiters = 0
+        self._notified = False
         self._writer_waiting = False
         self._readers: weakref.WeakSet[Reader] = weakref.WeakSet()
         self._floor = 0  # cached min over registered readers' next seq (blocking mode)
@@ -100,6 +105,11 @@ class _RingBase:
     def tail_seq(self) -> int:
         """Oldest seq still stored (head_seq + 1 when the ring is empty)."""
         return self._tail
+
+    @property
+    def last_t_ns(self) -> int | None:
+        """Timestamp of the last write (the next one must not be older), None before any."""
+        return None if self._head < 0 else self._last_t
 
     @property
     def closed(self) -> bool:
@@ -142,8 +152,9 @@ class _RingBase:
         self._seqs[slot] = seq
         self._last_t = t_ns
         self._head = seq
-        if self._waiters:
+        if self._waiters and not self._notified:
             with self._cond:
+                self._notified = True
                 self._cond.notify_all()
         return seq
 
@@ -155,7 +166,8 @@ class _RingBase:
                 while True:
                     # Flag first, then look: a reader that advances after this read sees the flag.
                     self._writer_waiting = True
-                    self._floor = min((r._pos for r in list(self._readers)), default=keep_from)
+                    # No reader: nothing to wait for until one registers (it lowers the floor).
+                    self._floor = min((r._pos for r in list(self._readers)), default=_NO_READER)
                     if self._floor >= keep_from:
                         return
                     if self._closed:
@@ -166,6 +178,11 @@ class _RingBase:
                     self._cond.wait(remaining)
             finally:
                 self._writer_waiting = False
+
+    def _wake_writer(self) -> None:
+        with self._cond:
+            self._writer_waiting = False  # one wake-up is enough: the writer re-arms it to wait
+            self._cond.notify_all()
 
     def close(self) -> None:
         """Stop the ring: wakes blocked readers (they drain what is left, then get None) and a
@@ -204,14 +221,15 @@ class _RingBase:
         limit) for one to be written. None on timeout, or when closed and nothing newer is left."""
         deadline = None
         while True:
-            if self._head > after_seq:
-                item = self._read(max(after_seq + 1, self._tail))
+            seq = max(after_seq + 1, self._tail)
+            if self._head >= seq:
+                item = self._read(seq)
                 if item is not None:
                     return item
                 continue  # evicted under us: the tail moved, try again from it
             if deadline is None and timeout is not None:
                 deadline = time.monotonic() + timeout
-            if not self._wait_past(after_seq, deadline):
+            if not self._wait_past(seq - 1, deadline):
                 return None
 
     def _wait_past(self, seq: int, deadline: float | None) -> bool:
@@ -219,14 +237,17 @@ class _RingBase:
         with self._cond:
             self._waiters += 1
             try:
-                while self._head <= seq:
+                while True:
+                    # Clear first, then look: a write after this look sees the flag cleared.
+                    self._notified = False
+                    if self._head > seq:
+                        return True
                     if self._closed:
                         return False
                     remaining = None if deadline is None else deadline - time.monotonic()
                     if remaining is not None and remaining <= 0:
                         return False
                     self._cond.wait(remaining)
-                return True
             finally:
                 self._waiters -= 1
 
@@ -318,10 +339,8 @@ class Reader:
 
     def _advance(self, pos: int) -> None:
         self._pos = pos
-        ring = self._ring
-        if ring._writer_waiting:  # set before the writer reads our position (see _wait_for_room)
-            with ring._cond:
-                ring._cond.notify_all()
+        if self._ring._writer_waiting:  # set before the writer reads our position
+            self._ring._wake_writer()
 
     def next(self, timeout: float | None = None) -> Item | None:
         """The next item in seq order (skipping, and counting as dropped, what was overwritten).
@@ -344,9 +363,8 @@ class Reader:
                     if seqs[slot] == pos:
                         self.received += 1
                         self._pos = pos + 1
-                        if ring._writer_waiting:  # see _wait_for_room: flag set before it looks
-                            with ring._cond:
-                                ring._cond.notify_all()
+                        if ring._writer_waiting:  # set before the writer reads our position
+                            ring._wake_writer()
                         return Item(pos, t_ns, payload)
                 self.retries += 1  # the tail passed pos meanwhile; the next loop counts the drop
                 continue
@@ -442,7 +460,7 @@ class CloudRing(_RingBase):
     """Variable-size (N, 3) float32 clouds in one preallocated circular point arena.
 
     Each cloud is stored contiguously at ``_off[slot]``; when it does not fit before the end of
-    the arena it goes to offset 0 (the end is left unused until the write position passes it).
+    the arena it goes to offset 0 (the points left at the end stay unused until the next wrap).
     A write evicts the oldest clouds until its span is free (they count as overwritten).
     """
 
