@@ -27,13 +27,13 @@ from live.errors import UserInputError
 from live.frames import DepthFrame, GroundTruth
 from live.kinematics import forward_kinematics
 from live.rig_mapping import Motion, load_motion, resample
-from live.skeleton import pelvis_height
+from live.skeleton import JOINT_INDEX, pelvis_height
 from live.skinning import lbs
 from live.sources import StreamInfo
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
 
-#: Session timestamps start here (1 s), so that replayed files never depend on the wall clock.
-T0_NS = 1_000_000_000
+#: Session timestamps start here (3 s: room for a 2 s IMU calibration hold before the first frame), so that replayed files never depend on the wall clock.
+T0_NS = 3_000_000_000
 #: A fixed "start wall time" for synthetic sessions (2026-01-01T00:00:00Z): same seed, same bytes.
 SYNTH_WALL_TIME_NS = 1_767_225_600_000_000_000
 
@@ -60,6 +60,13 @@ def pose_motion_on_body(motion: Motion, body: Body) -> tuple[np.ndarray, np.ndar
     ratio = pelvis_height(body.rest_joints) / max(pelvis_height(motion.rest_joints), 1e-6)
     root = np.asarray(motion.root, np.float64) * ratio
     joints, _ = forward_kinematics(motion.rotations, root, body.rest_joints)
+    # Clips keep their file's floor height; put the floor at y = 0: the feet's usual lowest point
+    # (5th percentile over frames, robust to jumps) goes to the body's rest foot height.
+    feet = [JOINT_INDEX[n] for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")]
+    lowest = joints[:, feet, 1].min(axis=1)
+    shift = float(np.percentile(lowest, 5)) - float(np.asarray(body.rest_joints)[feet, 1].min())
+    root[:, 1] -= shift
+    joints[..., 1] -= shift
     return root, joints
 
 

@@ -150,12 +150,20 @@ def test_web_viewer_screenshot(web_sink, tmp_path):
     results, _ = _results(3)
     for r in results:
         web_sink.send(r)
-    shot = tmp_path / "viewer.png"
-    subprocess.run([browser, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
-                    f"--screenshot={shot}", "--window-size=1280,720", "--virtual-time-budget=15000",
-                    web_sink.url], capture_output=True, timeout=120)
     import cv2
 
-    img = cv2.imread(str(shot))
+    # The viewer is a large wasm app: on a loaded 2-core machine it can miss one virtual-time
+    # budget, so take up to three screenshots with growing budgets.
+    img = None
+    for attempt, budget in enumerate((15000, 30000, 60000)):
+        shot = tmp_path / f"viewer{attempt}.png"
+        subprocess.run([browser, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-gl=swiftshader",
+                        "--disable-background-networking", "--disable-component-update", "--no-first-run",
+                        f"--user-data-dir={tmp_path / f'profile{attempt}'}",
+                        f"--screenshot={shot}", "--window-size=1280,720", f"--virtual-time-budget={budget}",
+                        web_sink.url], capture_output=True, timeout=180)
+        img = cv2.imread(str(shot))
+        if img is not None and img.reshape(-1, 3).std(axis=0).max() > 5:
+            break
     assert img is not None and img.shape[:2] == (720, 1280)
     assert img.reshape(-1, 3).std(axis=0).max() > 5  # not a blank page

@@ -1,0 +1,104 @@
+"""Suit layouts for the IMU -> skeleton path: which segment each sensor id is strapped to.
+
+The file format and the segment names live in drivers/layouts (one place):
+``{"name": ..., "sensors": {"<id>": "<segment>", ...}}``, a segment being a canonical joint
+name (``left_elbow`` = the left forearm, the segment that joint's global rotation moves) or an
+alias (``chest``, ``left_forearm``, ...). Partial suits simply list fewer sensors.
+
+This module adds one optional key: ``"mounting": {"<id>": [w, x, y, z]}``, the nominal
+sensor-in-segment rotation of each pocket (identity when absent: the sensor's axes line up with
+the segment's axes in the canonical T-pose). Calibration only needs it to find the performer's
+heading from a single static pose; the exact mounting comes out of the calibration itself.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from drivers.layouts import DEFAULT_LAYOUT, parse_layout
+from live.errors import FormatError, UserInputError
+from live.rotations import quat_normalize
+from live.skeleton import JOINT_NAMES
+
+
+@dataclass(frozen=True)
+class SuitLayout:
+    """A suit: S sensors. sensors (S,) int32 ids, ascending; joints (S,) int64 canonical joint
+    (segment) of each; mounting (S, 4) nominal sensor-in-segment quaternions (w, x, y, z)."""
+
+    name: str
+    sensors: np.ndarray
+    joints: np.ndarray
+    mounting: np.ndarray
+
+    def __post_init__(self) -> None:
+        if len(set(self.joints.tolist())) != len(self.joints):
+            raise FormatError(f"layout {self.name!r}: two sensors on one segment")
+
+    @property
+    def size(self) -> int:
+        return int(len(self.sensors))
+
+    def index_of(self) -> dict[int, int]:
+        """{sensor id: row in the layout arrays}."""
+        return {int(s): i for i, s in enumerate(self.sensors)}
+
+    def as_dict(self) -> dict[int, int]:
+        """{sensor id: joint index}, the form sim.imu_model and drivers.layouts use."""
+        return {int(s): int(j) for s, j in zip(self.sensors, self.joints)}
+
+    def to_json(self) -> dict:
+        """The layout-file object (round-trips through ``parse_suit_layout``)."""
+        obj: dict = {"name": self.name,
+                     "sensors": {str(int(s)): JOINT_NAMES[int(j)] for s, j in zip(self.sensors, self.joints)}}
+        ident = np.allclose(self.mounting, [1.0, 0.0, 0.0, 0.0])
+        if not ident:
+            obj["mounting"] = {str(int(s)): [float(v) for v in q] for s, q in zip(self.sensors, self.mounting)}
+        return obj
+
+
+def parse_suit_layout(obj: object, *, path: str | None = None) -> SuitLayout:
+    """A layout object (as in a layout file) -> SuitLayout."""
+    mapping = parse_layout(obj, path=path)
+    sensors = np.array(list(mapping), dtype=np.int32)
+    joints = np.array([mapping[s] for s in mapping], dtype=np.int64)
+    mounting = np.zeros((len(sensors), 4))
+    mounting[:, 0] = 1.0
+    raw = obj.get("mounting", {}) if isinstance(obj, dict) else {}
+    if not isinstance(raw, dict):
+        raise FormatError('"mounting" is {"<id>": [w, x, y, z], ...}', path=path)
+    row = {int(s): i for i, s in enumerate(sensors)}
+    for key, q in raw.items():
+        try:
+            i = row[int(key)]
+            q = np.asarray(q, dtype=np.float64)
+        except (KeyError, ValueError, TypeError):
+            raise FormatError(f"mounting for unknown sensor {key!r}", path=path) from None
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-6:
+            raise FormatError(f"mounting of sensor {key} is not a quaternion (w, x, y, z)", path=path)
+        mounting[i] = quat_normalize(q)
+    name = obj.get("name", "suit") if isinstance(obj, dict) else "suit"
+    return SuitLayout(name=str(name), sensors=sensors, joints=joints, mounting=mounting)
+
+
+def load_suit_layout(spec: str | Path | dict | SuitLayout | None = None) -> SuitLayout:
+    """A layout from a file path, a layout object, a SuitLayout, or None (the 15-sensor full
+    body of drivers/layouts/full_body.json)."""
+    if isinstance(spec, SuitLayout):
+        return spec
+    if isinstance(spec, dict):
+        if spec and all(isinstance(k, int) for k in spec):  # {sensor id: joint index}
+            spec = {"name": "suit", "sensors": {str(s): JOINT_NAMES[j] for s, j in spec.items()}}
+        return parse_suit_layout(spec)
+    p = Path(spec) if spec is not None else DEFAULT_LAYOUT
+    try:
+        obj = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise UserInputError(f"layout file not found: {p}") from None
+    except json.JSONDecodeError as e:
+        raise FormatError(f"not JSON: {e.msg}", path=str(p), line=e.lineno) from None
+    return parse_suit_layout(obj, path=str(p))

@@ -1,0 +1,1 @@
+"""Training code (torch); never imported by the runtime."""
