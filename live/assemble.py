@@ -38,7 +38,7 @@ def parse_host_port(text: str) -> tuple[str, int]:
 def build(opts: RunOptions) -> tuple[list, list, dict]:
     """(stages, sinks, parts) for a run; parts holds named stages/sinks the caller reports on."""
     parts: dict = {}
-    stages: list = [CloudStage()]
+    stages: list = []
     model = opts.model or DEFAULT_SKELETON_MODEL
     if opts.model is not None and not Path(opts.model).is_file():
         raise UserInputError(f"no such skeleton model: {opts.model}")
@@ -47,6 +47,9 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
 
         stages.append(SkeletonStage(model_path=model, threads=opts.threads))
         parts["skeleton"] = stages[-1]
+    else:
+        # No skeleton model: the pipeline still turns every depth frame into a world cloud.
+        stages.append(CloudStage())
     body = None
     if opts.avatar:
         body = _load_avatar(opts.avatar)

@@ -114,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=float, default=1.2, help="camera height above the floor, m")
     p.add_argument("--yaw", type=float, default=0.0, help="camera angle around the performer, degrees (0 = in front)")
     p.add_argument("--no-noise", action="store_true", help="ideal depth (no sensor noise)")
+    p.add_argument("--max-range", type=float, default=None, help="depth threshold in metres (farther reads 0), "
+                   "like the device's threshold filter (default: the camera preset's range)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",

@@ -36,6 +36,7 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
 
     speed = parse_speed(args.speed)
     source = _replay_source(target, speed)
+    out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
     stages, sinks, parts = build(_run_options(args, out, video))
     stats = run_pipeline([source], stages, sinks, mode="every", progress_total=total, progress=not args.quiet)
@@ -183,6 +184,7 @@ def cmd_synth(args) -> int:
         raise UserInputError(f"no such motion file: {args.motion}")
     opts = SynthOptions(motion=args.motion, body=args.body, camera=args.camera, seconds=args.seconds,
                         fps=args.fps, seed=args.seed, imu=args.imu, start_s=args.start, noise=not args.no_noise,
+                        max_range_m=args.max_range,
                         placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw)))
     bar = None
     if not args.quiet:

@@ -12,6 +12,7 @@ of the performance area.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import threading
@@ -90,8 +91,11 @@ class SyntheticScene:
     @classmethod
     def build(cls, motion: Motion, body: Body, *, camera: str = "oak-d", fps: float | None = None,
               placement: CameraPlacement | None = None, noise: NoiseModel | None = None,
-              seed: int = 0) -> SyntheticScene:
+              seed: int = 0, max_range_m: float | None = None) -> SyntheticScene:
         preset = get_preset(camera)
+        if max_range_m is not None:
+            # Like a depth threshold filter on the device (OAK-D thresholdFilter): farther is 0.
+            preset = dataclasses.replace(preset, max_range_m=float(max_range_m))
         motion = resample(motion, fps or preset.fps)
         root, joints = pose_motion_on_body(motion, body)
         placement = placement or CameraPlacement()
@@ -149,6 +153,7 @@ class SynthOptions:
     start_s: float = 0.0
     placement: CameraPlacement = field(default_factory=CameraPlacement)
     noise: bool = True
+    max_range_m: float | None = None
 
 
 def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int], None] | None = None) -> dict:
@@ -158,7 +163,8 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
     motion = load_motion(opts.motion)
     body = load_body(opts.body)
     scene = SyntheticScene.build(motion, body, camera=opts.camera, fps=opts.fps, placement=opts.placement,
-                                 noise=NoiseModel() if opts.noise else NoiseModel.none(), seed=opts.seed)
+                                 noise=NoiseModel() if opts.noise else NoiseModel.none(), seed=opts.seed,
+                                 max_range_m=opts.max_range_m)
     fps = float(scene.motion.fps)
     first = int(round(opts.start_s * fps))
     last = scene.num_frames if opts.seconds is None else min(scene.num_frames, first + int(round(opts.seconds * fps)))
@@ -173,7 +179,8 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
         suit = ImuStreamer(scene, protocol=opts.imu, seed=opts.seed)
         streams.append(suit.stream_info())
     extra = {"synthetic": {"motion": Path(opts.motion).name, "body": opts.body, "camera": opts.camera,
-                           "seed": opts.seed, "placement": asdict(opts.placement), "noise": opts.noise}}
+                           "seed": opts.seed, "placement": asdict(opts.placement), "noise": opts.noise,
+                           "max_range_m": opts.max_range_m}}
     with SessionWriter(out, streams, extra=extra, start_wall_time_ns=SYNTH_WALL_TIME_NS) as writer:
         writer.attach("body.npz", body_npz_bytes(body), create_time_ns=SYNTH_WALL_TIME_NS)
         for k, i in enumerate(range(first, last)):
