@@ -12,21 +12,41 @@ import numpy as np
 
 from live.kinematics import forward_kinematics
 from live.rotations import quat_to_matrix
-from live.skeleton import PARENTS
+from live.skeleton import PARENTS, rest_offsets
 
 
 def skinning_transforms(rotations: np.ndarray, root: np.ndarray, rest_joints: np.ndarray,
                         parents: np.ndarray = PARENTS) -> np.ndarray:
     """(T, 22, 3, 4) rigid transforms [R | t] taking rest-pose points to posed points per joint."""
     rotations = np.asarray(rotations, np.float64)
-    single = rotations.ndim == 2
-    if single:
-        rotations = rotations[None]
-        root = np.asarray(root, np.float64)[None]
-    joints, glob = forward_kinematics(rotations, np.asarray(root, np.float64), rest_joints, parents)
+    rest = np.asarray(rest_joints, np.float64)
+    if rotations.ndim == 2:
+        return _single_frame_transforms(rotations, np.asarray(root, np.float64), rest, parents)[None]
+    joints, glob = forward_kinematics(rotations, np.asarray(root, np.float64), rest, parents)
     r = quat_to_matrix(glob)  # T x J x 3 x 3
-    t = joints - np.einsum("tjab,jb->tja", r, np.asarray(rest_joints, np.float64))
+    t = joints - np.einsum("tjab,jb->tja", r, rest)
     return np.concatenate([r, t[..., None]], axis=-1)
+
+
+def _single_frame_transforms(rotations: np.ndarray, root: np.ndarray, rest: np.ndarray,
+                             parents: np.ndarray) -> np.ndarray:
+    """One frame: the same transforms with a 3x3 loop (the live path; no per-joint quaternion
+    arrays). Equal to the batched path to float precision."""
+    local = quat_to_matrix(rotations)
+    offsets = rest_offsets(rest)
+    glob = np.empty_like(local)
+    pos = np.empty_like(rest)
+    for j, p in enumerate(parents):
+        if p < 0:
+            glob[j] = local[j]
+            pos[j] = root
+        else:
+            glob[j] = glob[p] @ local[j]
+            pos[j] = pos[p] + glob[p] @ offsets[j]
+    out = np.empty((len(parents), 3, 4))
+    out[:, :, :3] = glob
+    out[:, :, 3] = pos - np.einsum("jab,jb->ja", glob, rest)
+    return out
 
 
 def lbs(rest_vertices: np.ndarray, weights: np.ndarray, rest_joints: np.ndarray, rotations: np.ndarray,
