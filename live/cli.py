@@ -63,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "through the pipeline and write DIR/stats.json and the result files.")
     p.add_argument("session", help="a .mcap session or a depth folder")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--only", choices=["depth", "imu", "fused"], default=None,
+                   help="with a depth + IMU session: skeleton from depth only, the suit only, or both fused")
+    p.add_argument("--calibration", type=Path, default=None, help="suit calibration (from `livecap calibrate`)")
     _add_replay_options(p)
 
     p = sub.add_parser("record", help="record sources into a session file",
@@ -123,6 +126,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-range", type=float, default=None, help="depth threshold in metres (farther reads 0), "
                    "like the device's threshold filter (default: the camera preset's range)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("eval", help="evaluate the skeleton regressor or a retargeter against ground truth",
+                       description="eval skeleton: replay sessions with ground truth through the skeleton stage and "
+                       "report MPJPE, PA-MPJPE, per-joint MPJPE, PCK@10cm, acceleration error and latency. "
+                       "eval retarget: retarget a motion from one body to another and report MPJPE, PA-MPJPE, Acc, "
+                       "PA-Acc, MPVD, PA-MPVD and MDEL.")
+    esub = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    e = esub.add_parser("skeleton", help="the depth -> skeleton stage")
+    e.add_argument("sessions", nargs="+", type=Path, help="sessions with ground truth (e.g. from `livecap synth`)")
+    e.add_argument("--model", type=Path, default=None, help="model to evaluate (default: the shipped one)")
+    e.add_argument("--compare", choices=["baseline"], default=None, help="also evaluate the reference PointNet")
+    e.add_argument("--threads", type=int, default=1)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+    e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
+    e.add_argument("--motion", required=True, help="a BVH clip")
+    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
+    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
+    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
+                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
+    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
+    e.add_argument("--max-frames", type=int, default=None)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
+                       description="Train and export a model with its model card. Extra arguments go to the trainer "
+                       "(see `livecap train WHAT -- --help`).")
+    p.add_argument("what", choices=["skeleton", "retarget", "skinning", "bodies"])
+    p.add_argument("--quick", action="store_true", help="a tiny run for smoke tests")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="more arguments for the trainer")
+
+    p = sub.add_parser("calibrate", help="calibrate an IMU suit (hold a T-pose or N-pose for 2 s)",
+                       description="Read the suit, wait for the performer to hold the pose still for 2 s, and save "
+                       "the sensor-to-segment calibration as JSON.")
+    p.add_argument("--source", required=True, help="serial source, e.g. serial:/dev/ttyUSB0:xbus")
+    p.add_argument("--out", type=Path, required=True, help="calibration file to write (.json)")
+    p.add_argument("--pose", choices=["tpose", "npose"], default="tpose")
+    p.add_argument("--layout", default=None, help="suit layout JSON (default: the 15-sensor full-body layout)")
+    p.add_argument("--height", type=float, default=1.75, help="performer height in metres")
+    p.add_argument("--timeout", type=float, default=60.0, help="give up after this many seconds")
 
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
                    description="List connected OAK devices, RealSense devices and serial ports.")

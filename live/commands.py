@@ -39,6 +39,9 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
     stages, sinks, parts = build(_run_options(args, out, video))
+    only = getattr(args, "only", None)
+    if only is not None:
+        stages = _capture_mode_stages(only, source, stages, args)
     stats = run_pipeline([source], stages, sinks, mode="every", progress_total=total, progress=not args.quiet)
     damage = getattr(source, "error", None)
     stats["session_error"] = damage
@@ -48,6 +51,24 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     if damage:
         print(f"livecap: {damage}", file=sys.stderr)
     return stats
+
+
+def _capture_mode_stages(mode: str, source, stages: list, args) -> list:
+    """Swap the skeleton stage for the IMU-only or fused one (``replay --only``)."""
+    from live.imu.stage import build_stages
+
+    suit = [s for s in source.streams() if s.kind == "serial"]
+    if mode in ("imu", "fused") and not suit:
+        raise UserInputError(f"--only {mode} needs a session with an IMU suit stream")
+    depth_stage = next((s for s in stages if getattr(s, "name", "") == "skeleton"), None)
+    if mode in ("depth", "fused") and depth_stage is None:
+        raise UserInputError(f"--only {mode} needs the skeleton model (models/weights/skeleton.onnx)")
+    if mode == "depth":
+        return stages
+    capture = build_stages(mode, calibration=args.calibration, depth_stage=depth_stage,
+                           stream_meta=suit[0].meta if suit else None)
+    rest = [s for s in stages if getattr(s, "name", "") not in ("skeleton", "cloud")]
+    return capture + rest
 
 
 def _print_summary(stats: dict) -> None:
@@ -215,4 +236,82 @@ def cmd_render(args) -> int:
     with tempfile.TemporaryDirectory(prefix="livecap-render-") as tmp:
         stats = _replay(args.session, args, Path(tmp), video=args.out)
     print(f"livecap render: {stats['frames']} frames -> {args.out}")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    import json as _json
+
+    if args.what == "skeleton":
+        from models.skeleton.evaluate import evaluate_sessions, format_report
+
+        for path in args.sessions:
+            if not path.is_file():
+                raise UserInputError(f"no such session: {path}")
+        report = evaluate_sessions([str(p) for p in args.sessions], model_path=args.model,
+                                   compare_baseline=args.compare == "baseline", threads=args.threads)
+    else:
+        from live.body import load_body
+        from live.retarget.evaluate import evaluate_retarget, format_report
+
+        if not Path(args.motion).is_file():
+            raise UserInputError(f"no such motion file: {args.motion}")
+        report = evaluate_retarget(args.motion, load_body(args.source_body), load_body(args.target_body),
+                                   from_=args.from_, retarget=args.retarget, max_frames=args.max_frames)
+    print(_json.dumps(report, indent=2, default=str) if args.json else format_report(report))
+    return 0
+
+
+_TRAINERS = {"skeleton": "models.train.train_skeleton", "retarget": "models.train.train_retarget",
+             "skinning": "models.train.train_skinning", "bodies": "models.train.export_bodies"}
+
+
+def cmd_train(args) -> int:
+    import importlib
+
+    try:
+        import torch  # noqa: F401 - only to give a clear message when the extra is missing
+    except ImportError:
+        raise UserInputError("training needs the train extra: pip install -e '.[train]'") from None
+    module = importlib.import_module(_TRAINERS[args.what])
+    extra = [a for a in args.args if a != "--"]
+    if args.quick:
+        extra.append("--quick")
+    module.main(extra)
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    import threading
+
+    from live.imu.calibration import CalibrationCollector
+    from live.imu.layout import load_suit_layout
+    from live.skeleton import default_rest_joints
+    from live.sources import open_source
+
+    source = open_source(args.source)
+    collector = CalibrationCollector(load_suit_layout(args.layout), args.pose,
+                                     default_rest_joints(args.height), hold_s=2.0)
+    stop = threading.Event()
+    found = []
+
+    def emit(packet) -> None:
+        if getattr(packet, "decoded", False) and not found:
+            cal = collector.feed(packet)
+            if cal is not None:
+                found.append(cal)
+                stop.set()
+
+    print(f"livecap calibrate: hold a {args.pose} still for 2 s ...", file=sys.stderr)
+    timer = threading.Timer(args.timeout, stop.set)
+    timer.daemon = True
+    timer.start()
+    try:
+        source.run(emit, stop)
+    finally:
+        timer.cancel()
+    if not found:
+        raise UserInputError(f"no still {args.pose} held for 2 s within {args.timeout:g} s")
+    found[0].save(args.out)
+    print(f"livecap calibrate: saved {args.out}")
     return 0

@@ -92,7 +92,8 @@ def test_user_mistakes_are_one_line(argv, capsys):
 
 
 def test_every_command_has_help():
-    for cmd in ["demo", "replay", "record", "run", "export", "info", "devices"]:
+    for cmd in ["demo", "replay", "record", "run", "export", "info", "devices", "synth", "render", "eval",
+                "calibrate"]:
         out = subprocess.run([sys.executable, "-m", "live.cli", cmd, "--help"], cwd=ROOT,
                              capture_output=True, text=True, timeout=60)
         assert out.returncode == 0 and "usage" in out.stdout
