@@ -1,12 +1,15 @@
 """LBS speed: frames/s for a ~7k-vertex body, one frame per call (the live case) and batched.
 
-    python benchmarks/bench_lbs.py
-Prints medians of 5 repetitions and a one-line JSON summary.
+    python benchmarks/bench_lbs.py                          # BLAS threads as numpy defaults them
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_lbs.py   # as the livecap CLI runs
+Prints medians of 5 repetitions and a one-line JSON summary (with the BLAS thread setting: the
+batched path is a BLAS matmul, the single-frame path avoids BLAS).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,9 +39,10 @@ def main() -> None:
             lbs(body.vertices, body.weights, body.rest_joints, q[i:i + 50], root[i:i + 50])
         batched.append(200 / (time.perf_counter() - t))
     out = {"vertices": len(body.vertices), "single_frame_fps": round(float(np.median(single)), 1),
-           "batched_fps": round(float(np.median(batched)), 1)}
+           "batched_fps": round(float(np.median(batched)), 1),
+           "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default")}
     print(f"LBS {out['vertices']} vertices: {out['single_frame_fps']} frames/s one at a time, "
-          f"{out['batched_fps']} frames/s in batches of 50 (medians of 5)")
+          f"{out['batched_fps']} frames/s in batches of 50 (medians of 5; OpenBLAS threads: {out['openblas_threads']})")
     print(json.dumps(out))
 
 

@@ -54,14 +54,8 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if opts.avatar:
         body = _load_avatar(opts.avatar)
         skin = opts.viewer is not None or opts.video is not None
-        if opts.retarget == "learned":
-            from live.retarget.learned import LearnedRetargetStage
-
-            stages.append(LearnedRetargetStage(body, skin=skin))
-        elif opts.retarget == "analytic":
-            stages.append(RetargetStage(body, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik, skin=skin))
-        else:
-            raise UserInputError(f"--retarget must be analytic or learned, not {opts.retarget!r}")
+        stages.append(RetargetStage(body, kind=opts.retarget, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik,
+                                    skin=skin))
         parts["avatar"] = body
     results = ResultsWriter(opts.out, avatar_rest_joints=None if body is None else body.rest_joints, fps=opts.fps)
     parts["results"] = results
@@ -91,8 +85,6 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
 
 
 def _load_avatar(spec: str):
-    try:
-        from live.avatar import load_avatar
-    except ImportError:
-        from live.body import load_body as load_avatar
+    from live.avatar import load_avatar
+
     return load_avatar(spec)

@@ -8,6 +8,8 @@ posed position, so identity rotations with root = rest pelvis reproduce the rest
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from live.kinematics import forward_kinematics
@@ -15,13 +17,39 @@ from live.rotations import quat_to_matrix
 from live.skeleton import PARENTS, rest_offsets
 
 
+_LAYOUT_LOCK = threading.Lock()
+_LAYOUTS: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(array) -> (array, its float32 transpose)
+
+
+def _transposed(a: np.ndarray) -> np.ndarray:
+    """a.T as a C-contiguous float32 array (V x K -> K x V).
+
+    Memoised for read-only float32 arrays that own their data (loaded bodies): those cannot
+    change, and the live loop skins the same body every frame, where the copy would cost 15% of
+    the frame. The memo holds the array itself, so its id cannot be reused while cached."""
+    a = np.asarray(a)
+    if a.flags.writeable or a.base is not None or a.dtype != np.float32:
+        return np.ascontiguousarray(np.asarray(a, np.float32).T)
+    with _LAYOUT_LOCK:
+        hit = _LAYOUTS.get(id(a))
+        if hit is not None and hit[0] is a:
+            return hit[1]
+        out = np.ascontiguousarray(a.T)
+        out.flags.writeable = False
+        if len(_LAYOUTS) >= 16:
+            _LAYOUTS.pop(next(iter(_LAYOUTS)))
+        _LAYOUTS[id(a)] = (a, out)
+        return out
+
+
 def skinning_transforms(rotations: np.ndarray, root: np.ndarray, rest_joints: np.ndarray,
                         parents: np.ndarray = PARENTS) -> np.ndarray:
     """(T, 22, 3, 4) rigid transforms [R | t] taking rest-pose points to posed points per joint."""
     rotations = np.asarray(rotations, np.float64)
     rest = np.asarray(rest_joints, np.float64)
-    if rotations.ndim == 2:
-        return _single_frame_transforms(rotations, np.asarray(root, np.float64), rest, parents)[None]
+    if rotations.ndim == 2 or (rotations.ndim == 3 and len(rotations) == 1):
+        return _single_frame_transforms(rotations.reshape(-1, 4), np.asarray(root, np.float64).reshape(3),
+                                        rest, parents)[None]
     joints, glob = forward_kinematics(rotations, np.asarray(root, np.float64), rest, parents)
     r = quat_to_matrix(glob)  # T x J x 3 x 3
     t = joints - np.einsum("tjab,jb->tja", r, rest)
@@ -54,11 +82,17 @@ def lbs(rest_vertices: np.ndarray, weights: np.ndarray, rest_joints: np.ndarray,
     """Posed vertices (T, V, 3) float32 (T = 1 for a single (22, 4) pose)."""
     g = skinning_transforms(rotations, root, rest_joints, parents).astype(np.float32)  # T x J x 3 x 4
     t_count, j_count = g.shape[:2]
-    wt = np.ascontiguousarray(np.asarray(weights, np.float32).T)  # J x V
-    vt = np.asarray(rest_vertices, np.float32).T  # 3 x V
+    wt = _transposed(weights)  # J x V
+    vt = _transposed(rest_vertices)  # 3 x V
     # Blend the 12 transform coefficients of every vertex with one matmul, laid out
     # (column, row) x V so that applying them is four fused multiply-adds on contiguous rows.
     coeffs = np.ascontiguousarray(g.transpose(0, 3, 2, 1)).reshape(t_count * 12, j_count)
-    blended = (coeffs @ wt).reshape(t_count, 4, 3, -1)
+    if t_count == 1:
+        # One frame (the live case): einsum's own loop, not BLAS. A 12 x 22 by 22 x V product is
+        # too small for BLAS threads, which on a busy 2-core machine cost 20x (83 instead of
+        # 1,700 frames/s) unless the caller pinned BLAS to one thread; einsum never threads.
+        blended = np.einsum("kj,jv->kv", coeffs, wt).reshape(1, 4, 3, -1)
+    else:
+        blended = (coeffs @ wt).reshape(t_count, 4, 3, -1)
     out = blended[:, 0] * vt[0] + blended[:, 1] * vt[1] + blended[:, 2] * vt[2] + blended[:, 3]
     return np.ascontiguousarray(out.transpose(0, 2, 1))

@@ -30,7 +30,7 @@ class CloudStage:
 
 
 class RetargetStage:
-    """Performer skeletons -> avatar poses on another body (analytic retargeter).
+    """Performer skeletons -> avatar poses on another body (analytic or learned retargeter).
 
     The performer's rest skeleton is unknown live: it is estimated from the skeletons seen
     (median bone lengths), refined over the first ``warmup`` frames, then frozen so that the
@@ -39,30 +39,53 @@ class RetargetStage:
 
     name = "retarget"
 
-    def __init__(self, avatar, *, foot_lock: bool = True, hand_ik: bool = False, skin: bool = False,
-                 warmup: int = 30, use_truth: bool = False):
+    def __init__(self, avatar, *, kind: str = "analytic", foot_lock: bool = True, hand_ik: bool = False,
+                 skin: bool = False, warmup: int = 30, use_truth: bool = False, model_path=None):
+        if kind not in ("analytic", "learned"):
+            from live.errors import UserInputError
+
+            raise UserInputError(f"--retarget must be analytic or learned, not {kind!r}")
         self.avatar = avatar
+        self.kind = kind
         self.foot_lock = foot_lock
         self.hand_ik = hand_ik
-        self.skin = skin
+        self.skin = skin and len(getattr(avatar, "faces", ())) > 0
         self.warmup = warmup
         self.use_truth = use_truth
+        self.model_path = model_path
         self._seen: list[np.ndarray] = []
         self._retargeter = None
         self._last_t_ns: int | None = None
 
-    def _source_rest(self, joints: np.ndarray) -> np.ndarray | None:
-        from live.retarget.analytic import estimate_rest_joints
+    def _make(self, rest: np.ndarray):
+        if self.kind == "learned":
+            from live.retarget.learned import LearnedRetargeter
 
-        if len(self._seen) < self.warmup:
-            self._seen.append(np.asarray(joints, np.float64))
-            rest = estimate_rest_joints(np.stack(self._seen))
-            return rest
-        return None
+            return LearnedRetargeter(self.model_path, rest, self.avatar.rest_joints)
+        from live.retarget.stage import AnalyticRetargeter
+
+        return AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock, hand_ik=self.hand_ik)
+
+    def _update_source(self, rest: np.ndarray) -> None:
+        """New performer proportions; motion state (contacts, twists, GRU state) is kept."""
+        from live.retarget.analytic import leg_ratio
+        from live.skeleton import pelvis_height
+
+        r = self._retargeter
+        if self.kind == "learned":
+            from live.retarget.learned import rest_features
+
+            r.source_rest = np.asarray(rest, np.float64)
+            r.src_leg = max(pelvis_height(r.source_rest), 1e-3)
+            r.ratio = r.tgt_leg / r.src_leg
+            r._src_feat = rest_features(r.source_rest)
+        else:
+            r.source = type(r.source).of(rest)
+            r.ratio = leg_ratio(r.source.rest_joints, r.target.rest_joints)
 
     def process(self, result: FrameResult) -> bool:
         from live.frames import AvatarPose
-        from live.retarget.stage import AnalyticRetargeter
+        from live.retarget.analytic import estimate_rest_joints
 
         if self.use_truth:
             if result.truth is None:
@@ -72,18 +95,13 @@ class RetargetStage:
             joints = result.skeleton.joints
         else:
             return False
-        rest = self._source_rest(joints)
-        if rest is not None:
+        if len(self._seen) < self.warmup:
+            self._seen.append(np.asarray(joints, np.float64))
+            rest = estimate_rest_joints(np.stack(self._seen))
             if self._retargeter is None:
-                self._retargeter = AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock,
-                                                      hand_ik=self.hand_ik)
+                self._retargeter = self._make(rest)
             else:
-                # Keep contact/twist state; only the proportions of the source change.
-                self._retargeter.source = type(self._retargeter.source).of(rest)
-                from live.retarget.analytic import leg_ratio
-
-                self._retargeter.ratio = leg_ratio(self._retargeter.source.rest_joints,
-                                                   self._retargeter.target.rest_joints)
+                self._update_source(rest)
         dt = None
         if self._last_t_ns is not None and result.t_ns > self._last_t_ns:
             dt = (result.t_ns - self._last_t_ns) / 1e9

@@ -6,8 +6,9 @@ For each phenotype in ``LIBRARY``: build the Anny body (rig ``cmu_mb``, topology
 pose it from Anny's A-pose into the canonical T-pose with its own bones (legs straight down, arms
 and forearms along +-x, everything else as Anny rests it), convert Anny's frame (z up, facing -y)
 to ours (y up, facing +z, feet on y = 0), decimate to about 7k vertices with open3d's quadric
-decimation (weights carried over from the nearest full-resolution vertex), fold Anny's 31 bone
-weights onto the 22 canonical joints, and save a body file (CONVENTIONS.md). Deterministic.
+decimation (weights: inverse-distance blend of the 4 nearest full-resolution vertices), fold
+Anny's 31 bone weights onto the 22 canonical joints, and save a body file (CONVENTIONS.md).
+Deterministic: the same anny and open3d versions regenerate the committed files byte for byte.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from live.body import ANNY_KEYS as PHENOTYPE_KEYS
+from live.body import parse_anny_spec as parse_phenotype
 from live.skeleton import JOINT_INDEX, PARENTS
 
 #: Anny frame -> ours: x stays (subject's left), z up -> y up, -y forward -> +z forward.
@@ -51,10 +54,13 @@ TPOSE_DIRECTIONS = {
     "RightArm": (-1.0, 0.0, 0.0), "RightForeArm": (-1.0, 0.0, 0.0),
 }
 
-PHENOTYPE_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 
 #: The shipped library: name -> Anny phenotype (values in [0, 1] as Anny defines them: gender 0 is
-#: male and 1 female; age anchors newborn 0, baby 0.25, child 0.5 (~11 y), young adult 0.75, old 1).
+#: male and 1 female; age blends Anny's newborn/baby/child/young/old targets at -1/3, 0, 1/3, 2/3, 1,
+#: which Anny's own calibration (data/shape_calibration) reads as 4 y at 0.215, 11 y at 0.415,
+#: 16 y at 0.67, 18 y at 0.77, 64 y at 0.83; the names say what the bodies look like, e.g.
+#: child_boy_4y is 1.05 m tall). Renaming or adding bodies changes the train/val body splits of
+#: the learned models (split_bodies(list_presets())): retrain them after such a change.
 LIBRARY: dict[str, dict[str, float]] = {
     "adult_male_average": dict(gender=0.0, age=0.75, muscle=0.5, weight=0.5, height=0.38, proportions=0.5),
     "adult_female_average": dict(gender=1.0, age=0.75, muscle=0.5, weight=0.5, height=0.39, proportions=0.5),
@@ -82,25 +88,6 @@ LIBRARY: dict[str, dict[str, float]] = {
 ALIASES = {"performer": "adult_male_average", "default": "child_boy_9y"}
 
 TARGET_VERTICES = 7000
-
-
-def parse_phenotype(spec: str) -> dict[str, float]:
-    """``gender=0.3,age=0.6,...`` -> dict (missing keys take Anny's middle value 0.5)."""
-    from live.errors import UserInputError
-
-    values = {k: 0.5 for k in PHENOTYPE_KEYS}
-    for part in filter(None, (p.strip() for p in spec.split(","))):
-        key, sep, value = part.partition("=")
-        if not sep or key.strip() not in PHENOTYPE_KEYS:
-            raise UserInputError(f"bad anny phenotype {part!r}: use k=v with k in {', '.join(PHENOTYPE_KEYS)}")
-        try:
-            v = float(value)
-        except ValueError:
-            raise UserInputError(f"bad anny phenotype value {value!r} for {key}") from None
-        if not 0.0 <= v <= 1.0:
-            raise UserInputError(f"anny phenotype {key}={v} is outside [0, 1]")
-        values[key.strip()] = v
-    return values
 
 
 _MODEL = None

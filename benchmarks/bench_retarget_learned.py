@@ -1,0 +1,92 @@
+"""Per-frame cost of the learned retargeter beside the analytic one, alone and with LBS.
+
+Run: .venv/bin/python benchmarks/bench_retarget_learned.py [--frames 600] [--model PATH]
+Timing (median / p95 ms, 10 warm-up frames skipped), same process, same motion (a held-out CMU
+clip at 30 fps, subject 12, on a preset body, retargeted onto another):
+- the ONNX step alone (session.run with the GRU states), the full LearnedRetargeter.step;
+- AnalyticRetargeter.step (foot lock + floor), for comparison;
+- each retargeter's step + LBS of the target avatar (~7k vertices: a body preset), the stage goal
+  being <= 2 ms p95 per frame;
+- the skinning field on all the avatar's vertices (once per avatar, not per frame).
+BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1 unless set): on the shared 2-core machine a
+multi-threaded BLAS made one 7k-vertex LBS 10x slower (18 ms instead of 1.8 ms median).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from live.retarget import AnalyticRetargeter  # noqa: E402
+from live.retarget.learned import LearnedRetargeter  # noqa: E402
+
+BVH = ROOT.parent / "shared" / "data" / "bvh"
+
+
+def _times(fn, items) -> tuple[float, float]:
+    ts = []
+    for it in items:
+        t0 = time.perf_counter()
+        fn(it)
+        ts.append(time.perf_counter() - t0)
+    ms = np.array(ts[10:]) * 1e3
+    return float(np.median(ms)), float(np.percentile(ms, 95))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=600)
+    ap.add_argument("--model", default=None)
+    ap.add_argument("--source", default=None, help="source body preset (default: the first)")
+    ap.add_argument("--target", default=None, help="target body preset (default: the last)")
+    args = ap.parse_args()
+    from live.body import list_presets, load_body
+    from live.retarget.evaluate import _on_body, grounded
+    from live.retarget.skinning_field import SkinningFieldModel
+    from live.rig_mapping import load_motion, resample
+    from live.skinning import lbs
+
+    names = sorted(list_presets())
+    src = load_body(args.source or names[0])
+    tgt = load_body(args.target or names[-1])
+    motion = grounded(resample(load_motion(BVH / "mb_12_01.bvh"), 30.0))
+    _, joints = _on_body(motion, src.rest_joints)
+    joints = np.concatenate([joints] * (1 + args.frames // len(joints)))[:args.frames]
+    print(f"{len(joints)} frames, {src.name} -> {tgt.name} ({len(tgt.vertices)} vertices); ms median / p95")
+
+    learned = LearnedRetargeter(args.model, src.rest_joints, tgt.rest_joints)
+    analytic = AnalyticRetargeter(src.rest_joints, tgt.rest_joints)
+    feed = {"source": np.zeros((1, learned.session.get_inputs()[0].shape[1]), np.float32),
+            "target": learned._tgt_feat, "h_enc": learned.h_enc, "h_dec": learned.h_dec}
+    rows = [("learned: ONNX session.run alone", _times(lambda _: learned.session.run(None, feed), joints))]
+    rows.append(("learned: step()", _times(learned.step, joints)))
+    rows.append(("analytic: step() (foot lock + floor)", _times(analytic.step, joints)))
+    for name, rt in (("learned", learned), ("analytic", analytic)):
+        rt.reset()
+
+        def stage(j, rt=rt):
+            r, q, _ = rt.step(j)
+            lbs(tgt.vertices, tgt.weights, tgt.rest_joints, q[None], r[None])
+
+        rows.append((f"{name}: step() + LBS", _times(stage, joints)))
+    field = SkinningFieldModel()
+    rows.append((f"skinning field, {len(tgt.vertices)} points (per avatar)",
+                 _times(lambda _: field.weights(tgt.vertices, tgt.rest_joints), range(30))))
+    for name, (med, p95) in rows:
+        print(f"  {name:44s} {med:7.3f} / {p95:7.3f}")
+
+
+if __name__ == "__main__":
+    main()

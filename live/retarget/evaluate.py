@@ -1,0 +1,255 @@
+"""Retargeting evaluation with the reference metrics (issue 5): ``evaluate_retarget``.
+
+Ground truth: the motion's local rotations on the target's T-pose, the root scaled by the
+leg-length ratio (CONVENTIONS.md), skinned with the target's true weights. Prediction: the motion
+put on the source body (same convention), then either its exact joints (``from_="skeleton"``) or
+the whole chain from a virtual depth camera (``from_="depth"``: SyntheticScene -> SkeletonStage
+-> retargeter), retargeted online frame by frame (analytic or learned), skinned by LBS with the
+target's weights. Metrics (live/metrics.py): MPJPE, PA-MPJPE, Acc, PA-Acc (m/frame^2 at the
+evaluation rate, the reference's unit) on joints; MPVD, PA-MPVD, MDEL (edges to each vertex's 6
+nearest T-pose neighbours, lengths compared with the ground truth's per frame) on vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from live.errors import UserInputError
+from live.kinematics import forward_kinematics
+from live.skeleton import pelvis_height
+
+#: The reference method's figures (SMPL test set, naked targets), for the report.
+REFERENCE = {"mpjpe": 0.158, "pa_mpjpe": 0.043, "acc": 0.021, "pa_acc": 0.008, "mpvd": 0.134,
+             "pa_mpvd": 0.040, "mdel": 0.000524}
+METRICS = ("mpjpe", "pa_mpjpe", "acc", "pa_acc", "mpvd", "pa_mpvd", "mdel")
+
+
+def grounded(motion):
+    """The motion shifted vertically so its typical lowest joint (5th percentile over frames of the
+    per-frame minimum) sits where its T-pose's lowest joint does: some converted CMU clips float or
+    sink by up to a metre, and a performer must stand on the floor."""
+    lowest = np.percentile(np.asarray(motion.joints)[:, :, 1].min(axis=1), 5)
+    dy = np.float32(np.asarray(motion.rest_joints)[:, 1].min() - lowest)
+    shift = np.array([0.0, dy, 0.0], np.float32)
+    return replace(motion, root=(motion.root + shift).astype(np.float32),
+                   joints=(motion.joints + shift).astype(np.float32))
+
+
+def _on_body(motion, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(root T x 3, joints T x 22 x 3) of the motion on a body with T-pose ``rest``."""
+    root = np.asarray(motion.root, np.float64) * (pelvis_height(rest) / pelvis_height(motion.rest_joints))
+    return root, forward_kinematics(motion.rotations, root, rest)[0]
+
+
+def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray, fps: float,
+                    model: str | Path | None = None):
+    """An AnalyticRetargeter (defaults: foot lock + floor) or a LearnedRetargeter."""
+    if kind == "analytic":
+        from live.retarget.stage import AnalyticRetargeter
+
+        return AnalyticRetargeter(source_rest, target_rest, fps=fps)
+    if kind == "learned":
+        from live.retarget.learned import LearnedRetargeter
+
+        return LearnedRetargeter(model, source_rest, target_rest, fps=fps)
+    raise UserInputError(f"unknown retargeter {kind!r}; choose analytic or learned")
+
+
+def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0,
+                    skeleton_model: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Run the virtual camera and the skeleton stage over the motion on the source body.
+
+    Returns (joints T x 22 x 3 world, found (T,) bool); frames where nobody was found repeat the
+    last skeleton (the first found one before any), as a live avatar would hold its pose."""
+    from models.skeleton.runtime import SkeletonStage
+    from sim.synth import SyntheticScene
+
+    scene = SyntheticScene.build(motion, source_body, camera=camera, fps=motion.fps, seed=seed)
+    stage = SkeletonStage(skeleton_model)
+    out = np.full((scene.num_frames, 22, 3), np.nan)
+    for i in range(scene.num_frames):
+        t_ns = 1_000_000_000 + int(round(i * 1e9 / motion.fps))
+        sk = stage.estimate(scene.depth(i, t_ns))
+        if sk is not None:
+            out[i] = sk.joints
+    found = ~np.isnan(out[:, 0, 0])
+    if not found.any():
+        raise UserInputError("the skeleton stage found nobody in any frame")
+    last = out[np.argmax(found)]
+    for i in range(len(out)):
+        if found[i]:
+            last = out[i]
+        else:
+            out[i] = last
+    return out, found
+
+
+def prepare_motion(motion, fps: float = 30.0, max_frames: int | None = None):
+    """A Motion (or BVH path) grounded, resampled to ``fps``, cut to its first ``max_frames``."""
+    from live.rig_mapping import load_motion, resample
+
+    if isinstance(motion, (str, Path)):
+        motion = load_motion(motion)
+    motion = grounded(resample(motion, fps))
+    if max_frames is not None:
+        n = int(max_frames)
+        motion = replace(motion, joints=motion.joints[:n], rotations=motion.rotations[:n], root=motion.root[:n])
+    if motion.num_frames < 3:
+        raise UserInputError("the motion needs at least 3 frames")
+    return motion
+
+
+def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton", retarget: str = "analytic",
+                      *, fps: float = 30.0, max_frames: int | None = None, model: str | Path | None = None,
+                      camera: str = "oak-d", seed: int = 0, skeleton_model: str | Path | None = None,
+                      ) -> dict[str, Any]:
+    """Evaluate one retargeter on one motion from a source body to a target body.
+
+    motion: a Motion or a BVH path (grounded, resampled to ``fps``, first ``max_frames`` kept);
+    source_body / target_body: Body or a spec for live.body.load_body. from_: "skeleton" (exact
+    source joints) or "depth" (virtual camera + skeleton regressor). retarget: "analytic" or
+    "learned" (``model``: .onnx path, default the committed one). Returns a dict with the metrics
+    in metres (Acc, PA-Acc in m/frame^2), frames, fps, names and settings."""
+    from live.body import load_body
+
+    if from_ not in ("skeleton", "depth"):
+        raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
+    if retarget not in ("analytic", "learned"):
+        raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+    motion = prepare_motion(motion, fps, max_frames)
+    src = source_body if hasattr(source_body, "rest_joints") else load_body(source_body)
+    tgt = target_body if hasattr(target_body, "rest_joints") else load_body(target_body)
+    src_joints, src_rest, found = source_skeletons(motion, src, from_, camera=camera, seed=seed,
+                                                   skeleton_model=skeleton_model)
+    result = score(motion, tgt, src_joints, src_rest, retarget, fps=fps, model=model)
+    result.update(found=float(found.mean()), source_body=getattr(src, "name", str(source_body)), **{"from": from_})
+    return result
+
+
+def source_skeletons(motion, source_body, from_: str, **depth_options) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the retargeter sees: (joints T x 22 x 3, source T-pose 22 x 3, found (T,) bool).
+
+    "skeleton": the motion's exact joints on the source body and its true T-pose; "depth": the
+    virtual camera + skeleton stage, the T-pose estimated from the observed bone lengths (live,
+    the performer's T-pose is unknown)."""
+    if from_ == "skeleton":
+        _, joints = _on_body(motion, source_body.rest_joints)
+        return joints, np.asarray(source_body.rest_joints, np.float64), np.ones(len(joints), bool)
+    from live.retarget.analytic import estimate_rest_joints
+
+    joints, found = depth_skeletons(motion, source_body, **depth_options)
+    return joints, estimate_rest_joints(joints[found]), found
+
+
+def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, retarget: str, *, fps: float = 30.0,
+          model: str | Path | None = None) -> dict[str, Any]:
+    """Retarget source joints (T x 22 x 3) online onto the target body, skin, compare with the
+    ground truth of the motion on the target: the metrics dict (see ``evaluate_retarget``)."""
+    from live.metrics import acceleration_error, knn_edges, mpjpe, mpvd, pa_acceleration_error, pa_mpjpe, pa_mpvd
+    from live.skinning import lbs
+
+    tgt = target_body
+    gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
+    rt = make_retargeter(retarget, src_rest, tgt.rest_joints, fps, model)
+    root, rot, joints = (np.stack(x) for x in zip(*(rt.step(j) for j in src_joints)))
+    verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, rot, root)
+    gt_verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, motion.rotations, gt_root)
+    edges = knn_edges(np.asarray(tgt.vertices, np.float64), 6)
+    return {
+        "mpjpe": mpjpe(joints, gt_joints), "pa_mpjpe": pa_mpjpe(joints, gt_joints),
+        "acc": acceleration_error(joints, gt_joints), "pa_acc": pa_acceleration_error(joints, gt_joints),
+        "mpvd": mpvd(verts, gt_verts), "pa_mpvd": pa_mpvd(verts, gt_verts),
+        "mdel": _mdel(verts, gt_verts, edges),
+        "frames": int(motion.num_frames), "fps": float(fps), "motion": motion.name,
+        "target_body": getattr(tgt, "name", "target"), "retarget": retarget, "vertices": int(len(tgt.vertices)),
+    }
+
+
+def _mdel(verts: np.ndarray, gt_verts: np.ndarray, edges: np.ndarray) -> float:
+    """Mean |edge length - ground-truth edge length| (m), T-pose k-NN edges, per frame."""
+    from live.metrics import mdel
+
+    return float(np.mean([mdel(v[None], g[None], edges=edges) for v, g in zip(verts, gt_verts)]))
+
+
+def format_report(results: dict[str, Any] | list[dict[str, Any]], reference: bool = True) -> str:
+    """A Markdown table of one or several results (metrics in mm, Acc in mm/frame^2), with the
+    reference method's figures as the last row."""
+    rows = [results] if isinstance(results, dict) else list(results)
+    head = "| retarget | from | motion | source -> target | MPJPE | PA-MPJPE | Acc | PA-Acc | MPVD | PA-MPVD | MDEL |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+
+    def fmt(r: dict) -> str:
+        return " | ".join(f"{1000 * r[m]:.1f}" if m != "mdel" else f"{1000 * r[m]:.3f}" for m in METRICS)
+
+    for r in rows:
+        lines.append(f"| {r['retarget']} | {r['from']} | {r['motion']} | {r['source_body']} -> {r['target_body']} "
+                     f"| {fmt(r)} |")
+    if reference:
+        lines.append(f"| reference | - | SMPL test | - | {fmt(REFERENCE)} |")
+    lines.append("")
+    lines.append("Lengths in mm; Acc and PA-Acc in mm/frame^2 (at the evaluation frame rate).")
+    return "\n".join(lines)
+
+
+#: One held-out clip per held-out CMU subject (7, 8, 12, 16), for the side-by-side table.
+HELD_OUT_CLIPS = ("cc_007_01.bvh", "mb_08_01.bvh", "mb_12_01.bvh", "mb_16_15.bvh")
+
+
+def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD_OUT_CLIPS,
+                   bvh_dir: str | Path | None = None, model: str | Path | None = None, seed: int = 0,
+                   progress=None) -> list[dict[str, Any]]:
+    """Analytic and learned side by side on held-out clips x held-out body pairs (each held-out
+    preset to the next), the same source skeletons fed to both. Returns one averaged result per
+    retargeter (metrics are means over the runs; ``runs`` says how many)."""
+    from live.body import list_presets, load_body
+    from sim.skeleton_data import split_bodies
+
+    bvh = Path(bvh_dir) if bvh_dir is not None else Path(__file__).resolve().parents[3] / "shared" / "data" / "bvh"
+    names = split_bodies(list_presets(), "val")
+    bodies = [load_body(n) for n in names]
+    runs: dict[str, list[dict]] = {"analytic": [], "learned": []}
+    for k, clip in enumerate(clips):
+        motion = prepare_motion(bvh / clip, 30.0, max_frames)
+        for i, src in enumerate(bodies):
+            tgt = bodies[(i + 1) % len(bodies)]
+            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i) if from_ == "depth" \
+                else source_skeletons(motion, src, from_)
+            for kind in runs:
+                r = score(motion, tgt, joints, rest, kind, model=model)
+                r["found"] = float(found.mean())
+                runs[kind].append(r)
+            if progress is not None:
+                progress(f"{clip} {src.name} -> {tgt.name}")
+    out = []
+    for kind, rows in runs.items():
+        mean = {m: float(np.mean([r[m] for r in rows])) for m in METRICS + ("found",)}
+        mean.update(retarget=kind, motion=f"{len(clips)} held-out clips x {max_frames} frames",
+                    source_body=f"{len(bodies)} held-out bodies", target_body="the next one", runs=len(rows),
+                    frames=int(sum(r["frames"] for r in rows)), fps=30.0, **{"from": from_})
+        out.append(mean)
+    return out
+
+
+if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] [max_frames] [--card]
+    import json
+    import sys
+
+    args = [a for a in sys.argv[1:] if a != "--card"]
+    which = args[0] if args else "skeleton"
+    frames = int(args[1]) if len(args) > 1 else 300
+    table = held_out_table(which, max_frames=frames, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    print(format_report(table))
+    print(json.dumps(table, indent=1))
+    if "--card" in sys.argv:  # record the table in the retargeter's model card
+        from live.retarget.learned import DEFAULT_MODEL
+
+        card_path = DEFAULT_MODEL.with_suffix(".json")
+        card = json.loads(card_path.read_text())
+        card.setdefault("evaluation", {})[f"from_{which}"] = {
+            "command": f"python -m live.retarget.evaluate {which} {frames} --card", "rows": table}
+        card_path.write_text(json.dumps(card, indent=2) + "\n")

@@ -1,0 +1,145 @@
+"""The learned online retargeter: an ONNX GRU network run one frame at a time (onnxruntime).
+
+The network (models/train/retarget_nets.py) reads per frame the source joints relative to the
+pelvis, the bone directions, the root velocity and height (in source leg lengths) and both
+T-poses, and outputs the target's global joint rotations (6D; local ones follow) and a root
+correction; its two GRU states are explicit ONNX inputs
+and outputs that this class carries from frame to frame. Same interface as AnalyticRetargeter,
+so the pipeline can swap them (``--retarget analytic|learned``). See docs/learned_retargeting.md.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from live.errors import ModelError, UserInputError
+from live.frames import AvatarPose, GroundTruth, SkeletonFrame
+from live.kinematics import forward_kinematics
+from live.retarget.analytic import fk_matrices
+from live.rotations import matrix_to_quat, sixd_to_matrix
+from live.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "weights" / "retarget.onnx"
+TRAIN_FPS = 30.0
+
+
+def rest_features(rest: np.ndarray) -> np.ndarray:
+    """(22, 3) T-pose -> (66,) float32: joints relative to the pelvis / leg length."""
+    rest = np.asarray(rest, np.float64)
+    return ((rest - rest[0]) / max(pelvis_height(rest), 1e-3)).astype(np.float32).ravel()
+
+
+def source_features(joints: np.ndarray, prev_root: np.ndarray | None, rest_feat: np.ndarray,
+                    leg: float, velocity_scale: float = 1.0) -> np.ndarray:
+    """One frame's encoder input (199,) float32, as retarget_nets.source_features.
+
+    joints (22, 3) world source joints; prev_root (3,) or None on the first frame (zero velocity);
+    velocity_scale turns a per-frame root step into a per-1/30 s one when the frame rate differs."""
+    root = joints[0]
+    pose = (joints - root) / leg
+    bones = joints[1:] - joints[PARENTS[1:]]
+    dirs = bones / np.maximum(np.linalg.norm(bones, axis=1, keepdims=True), 1e-6)
+    vel = np.zeros(3) if prev_root is None else (root - prev_root) / leg * velocity_scale
+    return np.concatenate([pose.ravel(), dirs.ravel(), vel, [root[1] / leg], rest_feat]).astype(np.float32)
+
+
+class LearnedRetargeter:
+    """Stateful, frame-by-frame learned retargeter from a source body to a target body.
+
+    model_path: the .onnx file (default models/weights/retarget.onnx); source_rest, target_rest:
+    (22, 3) T-poses. fps: frame rate assumed when ``step`` is not given ``dt``. threads: onnxruntime
+    intra-op threads (1: the network is small and the machine is shared)."""
+
+    def __init__(self, model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,
+                 *, fps: float = 30.0, threads: int = 1):
+        import onnxruntime as ort
+
+        self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
+        if not self.path.is_file():
+            raise ModelError(f"no retargeting model at {self.path} (train one: livecap train retarget)")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = max(int(threads), 1)
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own types for unreadable graphs
+            raise ModelError(f"cannot load retargeting model {self.path}: {exc}") from exc
+        shapes = {i.name: i.shape for i in self.session.get_inputs()}
+        if set(shapes) != {"source", "target", "h_enc", "h_dec"}:
+            raise ModelError(f"{self.path.name}: expected inputs source, target, h_enc, h_dec; got {sorted(shapes)}")
+        self._h_shapes = {k: tuple(int(d) for d in shapes[k]) for k in ("h_enc", "h_dec")}
+        card = self.path.with_suffix(".json")
+        self.card: dict = json.loads(card.read_text()) if card.is_file() else {}
+        self.source_rest = np.asarray(source_rest, np.float64)
+        self.target_rest = np.asarray(target_rest, np.float64)
+        for name, rest in (("source_rest", self.source_rest), ("target_rest", self.target_rest)):
+            if rest.shape != (NUM_JOINTS, 3):
+                raise UserInputError(f"{name} must be (22, 3), got {rest.shape}")
+        self.src_leg = max(pelvis_height(self.source_rest), 1e-3)
+        self.tgt_leg = max(pelvis_height(self.target_rest), 1e-3)
+        self.ratio = self.tgt_leg / self.src_leg
+        self._src_feat = rest_features(self.source_rest)
+        self._tgt_feat = rest_features(self.target_rest)[None]
+        self._offsets = rest_offsets(self.target_rest)
+        self.dt = 1.0 / fps
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the motion so far (GRU states, last root, last timestamp)."""
+        self.h_enc = np.zeros(self._h_shapes["h_enc"], np.float32)
+        self.h_dec = np.zeros(self._h_shapes["h_dec"], np.float32)
+        self._prev_root: np.ndarray | None = None
+        self._last_t_ns: int | None = None
+
+    def step(self, pose: np.ndarray, root: np.ndarray | None = None,
+             dt: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Retarget one frame.
+
+        pose: source joints (22, 3) world metres, or local rotations (22, 4) with ``root`` (3,)
+        (turned into joints by FK on the source T-pose). Returns (root (3,), rotations (22, 4),
+        joints (22, 3)) of the target body."""
+        pose = np.asarray(pose, dtype=np.float64)
+        if pose.shape == (NUM_JOINTS, 4):
+            if root is None:
+                raise UserInputError("rotations need a root position")
+            pose = forward_kinematics(pose, np.asarray(root, np.float64), self.source_rest)[0]
+        elif pose.shape != (NUM_JOINTS, 3):
+            raise UserInputError(f"a frame is (22, 3) joints or (22, 4) rotations, got {pose.shape}")
+        scale = TRAIN_FPS * (self.dt if dt is None else dt)
+        feat = source_features(pose, self._prev_root, self._src_feat, self.src_leg, 1.0 / max(scale, 1e-6))
+        self._prev_root = pose[0].copy()
+        d6, droot, self.h_enc, self.h_dec = self.session.run(
+            None, {"source": feat[None], "target": self._tgt_feat, "h_enc": self.h_enc, "h_dec": self.h_dec})
+        glob = sixd_to_matrix(d6[0].astype(np.float64))  # the network gives world rotations
+        loc = glob.copy()
+        loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
+        root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
+        _, joints = fk_matrices(loc[None], root_t[None], self._offsets)
+        return root_t, matrix_to_quat(loc), joints[0]
+
+    def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
+        """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
+        dt = None
+        if self._last_t_ns is not None and frame.t_ns > self._last_t_ns:
+            dt = (frame.t_ns - self._last_t_ns) * 1e-9
+        self._last_t_ns = frame.t_ns
+        if isinstance(frame, SkeletonFrame):
+            root, rot, joints = self.step(frame.joints, dt=dt)
+        else:
+            root, rot, joints = self.step(frame.rotations, frame.root, dt=dt)
+        return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
+
+
+def learned_retarget_motion(model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,
+                            joints: np.ndarray, fps: float = 30.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offline batch: joints T x 22 x 3 through a fresh LearnedRetargeter, frame by frame.
+    Returns (root T x 3, rotations T x 22 x 4, joints T x 22 x 3)."""
+    rt = LearnedRetargeter(model_path, source_rest, target_rest, fps=fps)
+    frames = [rt.step(j) for j in np.asarray(joints, np.float64)]
+    if not frames:
+        return np.zeros((0, 3)), np.zeros((0, NUM_JOINTS, 4)), np.zeros((0, NUM_JOINTS, 3))
+    return tuple(np.stack(x) for x in zip(*frames))  # type: ignore[return-value]

@@ -1,0 +1,332 @@
+"""Train the learned online retargeter, validate it on held-out motions and bodies, export ONNX.
+
+    python -m models.train.train_retarget [--quick] [--out DIR] [--minutes M]
+
+Data: every CMU clip of ../shared/data/bvh mapped to the canonical skeleton (live.rig_mapping),
+resampled to 30 fps (cached in .cache/retarget_clips.npz). A training sample is a window of the
+clip's local rotations, turned by a random yaw, put on a source body A and a target body B: each a
+T-pose of the body library (training presets of sim.skeleton_data.split_bodies) with random
+per-bone length factors (0.85-1.15, left/right alike). Source joints = FK on A with the root
+scaled by A's leg ratio (plus, in half the batches, per-joint noise up to 2 cm, as from a depth
+skeleton); the exact answer on B = the same rotations on B's T-pose with the root scaled by B's
+leg ratio (CONVENTIONS.md).
+
+Losses (see docs/learned_retargeting.md): supervised joints / rotations / root against the exact
+answer; joint cycle consistency A->B->A; rotation cycle (lambda_rot = 0.01, rotations of A->B and
+of B->A agree); smoothness (joint velocities match the truth's). No adversarial loss: with exact
+targets it adds nothing but instability. Validation: held-out CMU subjects {7, 8, 12, 16} on
+held-out bodies, whole clips run online (one step per frame, state carried), beside the analytic
+retargeter. ``--quick`` trains briefly into .cache/retarget_quick unless --out is given.
+Seeded; torch.set_num_threads(1) (the machine is shared).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from models.train.retarget_nets import RetargetNet, count_parameters, export_onnx, fk, leg_length
+
+ROOT = Path(__file__).resolve().parents[2]
+WEIGHTS = ROOT / "models" / "weights"
+CACHE = ROOT / ".cache"
+FPS = 30.0
+LAMBDA_ROT = 0.01
+BATCH = 48
+
+
+# ----------------------------------------------------------------------------------------- data
+def load_clips(cache: Path = CACHE / "retarget_clips_v2.npz") -> dict:
+    """All clips at 30 fps: rotations (N,22,4), root (N,3), offsets (C+1,), rest (C,22,3),
+    subject (C,) (-1 = none), names (C,). Cached; rebuilt when the clip list changes."""
+    from live.rig_mapping import load_motion, resample
+    from sim.skeleton_data import BVH_DIR, list_clips
+
+    clips = list_clips()
+    names = [c.file for c in clips]
+    if cache.is_file():
+        data = dict(np.load(cache))
+        if list(data["names"]) == names:
+            return data
+    rots, roots, rests, offsets = [], [], [], [0]
+    from live.retarget.evaluate import grounded
+
+    for c in clips:
+        m = grounded(resample(load_motion(BVH_DIR / c.file), FPS))
+        rots.append(m.rotations.astype(np.float32))
+        roots.append(m.root.astype(np.float32))
+        rests.append(m.rest_joints.astype(np.float32))
+        offsets.append(offsets[-1] + m.num_frames)
+    data = {"rotations": np.concatenate(rots), "root": np.concatenate(roots), "offsets": np.array(offsets),
+            "rest": np.stack(rests), "subject": np.array([c.subject if c.subject is not None else -1 for c in clips]),
+            "names": np.array(names)}
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(cache, **data)
+    return data
+
+
+def body_rests(split: str, source: str = "library") -> tuple[list[str], np.ndarray]:
+    """Names and (K, 22, 3) T-poses of the bodies of a split (train / val).
+
+    source "library": the body-library presets (sim.skeleton_data.split_bodies); "generic": a
+    seeded set of generic T-poses (live.skeleton.default_rest_joints at 1.0-1.95 m, bones scaled
+    by up to +-10 %), usable without the library."""
+    if source == "generic":
+        from live.skeleton import default_rest_joints
+
+        rng = np.random.default_rng(1 if split == "train" else 2)
+        heights = np.linspace(1.0, 1.95, 12 if split == "train" else 4)
+        return ([f"generic-{h:.2f}" for h in heights],
+                np.stack([scale_bones(default_rest_joints(h), random_factors(rng, 0.1)) for h in heights]))
+    from live.body import list_presets, load_body
+    from sim.skeleton_data import split_bodies
+
+    names = split_bodies(list_presets(), "train" if split == "train" else "val")
+    return names, np.stack([np.asarray(load_body(n).rest_joints, np.float32) for n in names])
+
+
+def scale_bones(rest: np.ndarray, factors: np.ndarray) -> np.ndarray:
+    """(22,3) T-pose with bone j's offset times factors[j] (22,), rebuilt from the pelvis, lowest
+    foot joint kept at its height (feet stay on the floor)."""
+    from live.skeleton import PARENTS, rest_offsets
+
+    off = rest_offsets(rest) * factors[:, None]
+    out = np.empty_like(rest)
+    out[0] = rest[0]
+    for j in range(1, 22):
+        out[j] = out[PARENTS[j]] + off[j]
+    out[:, 1] += rest[[10, 11], 1].min() - out[[10, 11], 1].min()
+    return out
+
+
+def random_factors(rng: np.random.Generator, spread: float = 0.15) -> np.ndarray:
+    """(22,) per-bone length factors, left and right alike."""
+    from live.skeleton import LEFT_RIGHT_SWAP
+
+    f = rng.uniform(1 - spread, 1 + spread, 22)
+    return 0.5 * (f + f[LEFT_RIGHT_SWAP])
+
+
+def quat_to_matrix_t(q: torch.Tensor) -> torch.Tensor:
+    q = q / q.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1).unflatten(-1, (3, 3))
+
+
+class Sampler:
+    """Random training windows: (rotations B x T x 22 x 3 x 3, root B x T x 3 on the clip's own
+    body, clip T-pose B x 22 x 3, body A B x 22 x 3, body B B x 22 x 3)."""
+
+    def __init__(self, data: dict, clip_ids: np.ndarray, rests: np.ndarray, seed: int):
+        self.data, self.rests = data, rests
+        self.rng = np.random.default_rng(seed)
+        lengths = np.diff(data["offsets"])[clip_ids]
+        self.clip_ids = clip_ids
+        self.p = lengths / lengths.sum()
+
+    def body(self) -> np.ndarray:
+        base = self.rests[self.rng.integers(len(self.rests))]
+        return scale_bones(base, random_factors(self.rng))
+
+    def batch(self, size: int, length: int):
+        rng, d = self.rng, self.data
+        rot = np.empty((size, length, 22, 4), np.float32)
+        root = np.empty((size, length, 3), np.float32)
+        rest = np.empty((size, 22, 3), np.float32)
+        for b in range(size):
+            c = self.clip_ids[rng.choice(len(self.clip_ids), p=self.p)]
+            lo, hi = d["offsets"][c], d["offsets"][c + 1]
+            n = min(length, hi - lo)
+            s = lo + rng.integers(0, hi - lo - n + 1)
+            rot[b, :n], root[b, :n] = d["rotations"][s:s + n], d["root"][s:s + n]
+            rot[b, n:], root[b, n:] = rot[b, n - 1], root[b, n - 1]  # a short clip holds its last pose
+            # A random yaw about the world origin: the same motion facing elsewhere.
+            a = rng.uniform(-np.pi, np.pi)
+            yaw = np.array([np.cos(a / 2), 0.0, np.sin(a / 2), 0.0], np.float32)
+            rot[b, :, 0] = _qmul(yaw, rot[b, :, 0])
+            c_, s_ = np.cos(a), np.sin(a)
+            x, z = root[b, :, 0].copy(), root[b, :, 2].copy()
+            root[b, :, 0], root[b, :, 2] = c_ * x + s_ * z, -s_ * x + c_ * z
+            rest[b] = d["rest"][c]
+        body_a = np.stack([self.body() for _ in range(size)])
+        body_b = np.stack([self.body() for _ in range(size)])
+        return (quat_to_matrix_t(torch.from_numpy(rot)), torch.from_numpy(root), torch.from_numpy(rest),
+                torch.from_numpy(body_a), torch.from_numpy(body_b))
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body: torch.Tensor):
+    """The motion on a body: (root B x T x 3 scaled by the leg ratio, joints B x T x 22 x 3)."""
+    r = root * (leg_length(body) / leg_length(clip_rest))
+    return r, fk(rot, r, body)
+
+
+# ------------------------------------------------------------------------------------- training
+def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
+    rot, root, clip_rest, body_a, body_b = batch
+    _, src = on_body(rot, root, clip_rest, body_a)
+    gt_root, gt = on_body(rot, root, clip_rest, body_b)
+    if noise > 0:
+        src = src + noise * torch.rand(src.shape[0], 1, 1, 1) * torch.randn_like(src)
+    scale_b = leg_length(body_b)[:, None]  # B x 1 x 1 x 1: lengths in target leg lengths
+    pred_rot, pred_root, pred = net.retarget(src, body_a, body_b)
+    out = {
+        "joints": ((pred - gt).abs() / scale_b).mean(),
+        "rot": (pred_rot - rot).abs().mean(),
+        "root": ((pred_root - gt_root).abs() / scale_b[..., 0]).mean(),
+        "smooth": (((torch.diff(pred, dim=1) - torch.diff(gt, dim=1)).abs() / scale_b).mean()
+                   + ((torch.diff(pred, 2, dim=1) - torch.diff(gt, 2, dim=1)).abs() / scale_b).mean()) * 10.0,
+    }
+    # Cycle A -> B -> A: the retargeted joints, fed back as a source on B, must give A's joints.
+    # On a quarter of the batch: the second pass doubles the cost and the signal is redundant.
+    k = max(1, len(rot) // 4)
+    _, src_clean = on_body(rot[:k], root[:k], clip_rest[:k], body_a[:k])
+    cyc_rot, _, cyc = net.retarget(pred[:k], body_b[:k], body_a[:k])
+    out["cycle"] = ((cyc - src_clean).abs() / leg_length(body_a[:k])[:, None]).mean()
+    out["rot_cycle"] = LAMBDA_ROT * (cyc_rot - pred_rot[:k]).abs().mean()
+    out["total"] = out["joints"] + 0.5 * out["rot"] + out["root"] + out["smooth"] + 0.5 * out["cycle"] + out["rot_cycle"]
+    return out
+
+
+def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, batch: int, lr: float,
+          log) -> dict:
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-5)
+    start = time.monotonic()
+    step, history = 0, []
+    run = {}
+    while step < max_steps and time.monotonic() - start < minutes * 60:
+        frac = max(step / max_steps, (time.monotonic() - start) / (minutes * 60))
+        for g in opt.param_groups:
+            g["lr"] = lr * 0.5 * (1 + np.cos(np.pi * min(frac, 1.0)))
+        long = step % 4 == 3  # a quarter of the windows are 4 s long, against drift in long runs
+        b = sampler.batch(batch // 4 if long else batch, 120 if long else 30)
+        noise = 0.02 if sampler.rng.random() < 0.5 else 0.0
+        out = losses(net, b, noise)
+        opt.zero_grad()
+        out["total"].backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        run = {k: run.get(k, 0.0) * 0.98 + float(v.detach()) * 0.02 for k, v in out.items()}
+        step += 1
+        if step % 200 == 0:
+            history.append({"step": step, "s": round(time.monotonic() - start, 1), **{k: round(v, 5) for k, v in run.items()}})
+            log(f"step {step} {time.monotonic() - start:.0f}s " + " ".join(f"{k}={v:.4f}" for k, v in run.items()))
+    return {"steps": step, "seconds": round(time.monotonic() - start, 1), "history": history}
+
+
+# ----------------------------------------------------------------------------------- validation
+def validate(onnx_path: Path, data: dict, clip_ids: np.ndarray, rests: np.ndarray, max_frames: int) -> dict:
+    """Whole held-out clips on held-out body pairs, online (one ONNX step per frame), against the
+    analytic retargeter: MPJPE / PA-MPJPE / Acc (m, m/frame^2) averaged over (clip, pair)."""
+    from live.kinematics import forward_kinematics
+    from live.metrics import acceleration_error, mpjpe, pa_mpjpe
+    from live.retarget import retarget_motion
+    from live.retarget.learned import LearnedRetargeter
+
+    res = {"learned": [], "analytic": []}
+    pairs = [(i, (i + 1) % len(rests)) for i in range(len(rests))]
+    for c in clip_ids:
+        lo, hi = data["offsets"][c], data["offsets"][c + 1]
+        hi = min(hi, lo + max_frames)
+        rot, root, clip_rest = data["rotations"][lo:hi], data["root"][lo:hi], data["rest"][c]
+        for a, b in pairs:
+            ra, rb = rests[a], rests[b]
+            src, _ = forward_kinematics(rot, root * ra[0, 1] / clip_rest[0, 1], ra)
+            gt, _ = forward_kinematics(rot, root * rb[0, 1] / clip_rest[0, 1], rb)
+            learned = LearnedRetargeter(onnx_path, ra, rb)
+            pred_l = np.stack([learned.step(j)[2] for j in src])
+            pred_a = retarget_motion(ra, rb, joints=src, fps=FPS)[2]
+            for name, pred in (("learned", pred_l), ("analytic", pred_a)):
+                res[name].append((mpjpe(pred, gt), pa_mpjpe(pred, gt), acceleration_error(pred, gt)))
+    return {k: dict(zip(("mpjpe_m", "pa_mpjpe_m", "acc_m_per_frame2"),
+                        (round(float(x), 5) for x in np.mean(v, axis=0)))) for k, v in res.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="a short smoke run (into .cache/retarget_quick)")
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--minutes", type=float, default=None, help="wall-time budget for training")
+    ap.add_argument("--steps", type=int, default=None)
+    ap.add_argument("--hidden", type=int, default=128)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--bodies", choices=("library", "generic"), default="library",
+                    help="training bodies: the body library's presets or generic T-poses")
+    ap.add_argument("--val-bodies", choices=("library", "generic"), default=None,
+                    help="validation bodies (default: as --bodies)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    torch.manual_seed(args.seed)
+    out = args.out or (CACHE / "retarget_quick" if args.quick else WEIGHTS)
+    out.mkdir(parents=True, exist_ok=True)
+    # A fixed number of steps decides the run (deterministic); the time limit is only a safety cap.
+    minutes = args.minutes or (1.0 if args.quick else 45.0)
+    steps = args.steps or (150 if args.quick else 3500)
+    log = lambda msg: print(msg, flush=True)  # noqa: E731
+
+    t0 = time.monotonic()
+    data = load_clips()
+    subj = data["subject"]
+    train_ids = np.flatnonzero(~np.isin(subj, [7, 8, 12, 16]))
+    val_ids = np.flatnonzero(np.isin(subj, [7, 8, 12, 16]))
+    train_names, train_rests = body_rests("train", args.bodies)
+    val_names, val_rests = body_rests("val", args.val_bodies or args.bodies)
+    log(f"{len(train_ids)} training clips, {len(val_ids)} held-out; bodies {len(train_names)} / {len(val_names)}")
+
+    net = RetargetNet(hidden=args.hidden)
+    sampler = Sampler(data, train_ids, train_rests, args.seed)
+    run = train(net, sampler, minutes, steps, batch=BATCH, lr=2e-3, log=log)
+    path = out / "retarget.onnx"
+    export_onnx(net, str(path))
+    log(f"exported {path} after {run['steps']} steps")
+    metrics = validate(path, data, val_ids[:2] if args.quick else val_ids, val_rests,
+                       max_frames=90 if args.quick else 900)
+    log(json.dumps(metrics))
+    frames = int(np.diff(data["offsets"])[train_ids].sum())
+    card = {
+        "model": "retarget", "file": path.name,
+        "command": " ".join(["python -m models.train.train_retarget", *(argv if argv is not None else sys.argv[1:])]), "kind": "encoder GRU x2 + decoder GRU x1, 6D rotations",
+        "inputs": {"source": "(1, 199) features of one frame (live/retarget/learned.py: source_features)",
+                   "target": "(1, 66) target T-pose relative to the pelvis / leg length",
+                   "h_enc": f"(2, 1, {args.hidden})", "h_dec": f"(1, 1, {args.hidden})"},
+        "outputs": {"rot6d": "(1, 22, 6) global (world) joint rotations, 6D (first two matrix columns); local = parent^T global",
+                    "root_delta": "(1, 3) root correction in target leg lengths",
+                    "h_enc_out": "next h_enc", "h_dec_out": "next h_dec"},
+        "hidden": args.hidden, "parameters": count_parameters(net), "fps": FPS,
+        "data": {"clips": "../shared/data/bvh (CMU), 30 fps", "train_clips": len(train_ids),
+                 "train_frames": frames, "val_subjects": [7, 8, 12, 16], "val_clips": len(val_ids),
+                 "train_bodies": train_names, "val_bodies": val_names,
+                 "augmentation": "random yaw; per-bone length x0.85-1.15; source joint noise up to 2 cm in half the batches"},
+        "losses": {"supervised": "L1 joints + 0.5 rotation matrices + root (exact targets)",
+                   "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": "10 x (L1 velocity + L1 acceleration) against the truth",
+                   "adversarial": "not used"},
+        "recipe": {"windows": "30 frames (a quarter 120)", "batch": BATCH, "optimizer": "AdamW 2e-3 cosine",
+                   "steps": run["steps"], "seed": args.seed, "threads": 1},
+        "validation": {"setting": "held-out clips (whole, <= 30 s) x held-out body pairs, ground-truth source skeletons, online",
+                       **metrics},
+        "training_seconds": run["seconds"], "total_seconds": round(time.monotonic() - t0, 1),
+        "quick": args.quick, "torch": torch.__version__, "python": sys.version.split()[0],
+        "machine": platform.machine(), "history": run["history"][-5:],
+    }
+    path.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    log(f"wrote {path.with_suffix('.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
