@@ -14,7 +14,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import sys
+
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from live.bvh import bvh_forward_kinematics, read_bvh, write_bvh
 from live.rig_mapping import map_clip
