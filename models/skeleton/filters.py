@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,7 +62,9 @@ class BoneLengthKeeper:
 
     warmup_frames: int = 15
     history: int = 300
+    update_every: int = 10
     _lengths: list[np.ndarray] = field(default_factory=list)
+    _seen: int = 0
     lengths: np.ndarray | None = None
 
     def __call__(self, joints: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -72,8 +75,12 @@ class BoneLengthKeeper:
         self._lengths.append(sample)
         if len(self._lengths) > self.history:
             self._lengths.pop(0)
-        if len(self._lengths) >= self.warmup_frames:
-            with np.errstate(all="ignore"):
+        self._seen += 1
+        # The median of a few hundred frames moves slowly: refresh it every few frames only.
+        due = self.lengths is None or self._seen % self.update_every == 0
+        if len(self._lengths) >= self.warmup_frames and due:
+            with warnings.catch_warnings():  # bones never confidently seen are all-NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
                 med = np.nanmedian(np.stack(self._lengths), axis=0)
             self.lengths = np.where(np.isfinite(med), med, obs)
         if self.lengths is None:

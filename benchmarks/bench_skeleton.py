@@ -1,0 +1,89 @@
+"""Per-frame cost of the skeleton stage on 640x400 OAK-D frames.
+
+Run: .venv/bin/python benchmarks/bench_skeleton.py [--frames 150] [--threads 1]
+Renders a real CMU clip on a body of the library (capsules when the library is missing) with the
+virtual OAK-D in a room with clutter, then times, per frame: the person finder (preprocess), the
+model alone (ours and the reference PointNet, same process, same input), and the whole stage
+(preprocess + model + flip guard + bone lengths + One Euro filter). Prints median and p95 (ms).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from live.frames import DepthFrame  # noqa: E402
+from models.skeleton.preprocess import PersonFinder, PreprocessConfig  # noqa: E402
+from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage  # noqa: E402
+from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
+from sim.room import Box, Room  # noqa: E402
+
+CLIP = ROOT.parent / "shared" / "data" / "bvh" / "cc_002_05.bvh"
+
+
+def render_frames(n: int, seed: int = 0) -> list[DepthFrame]:
+    """n consecutive OAK-D frames of a performer 2.5 m from the camera, in a cluttered room."""
+    from live.body import list_presets, load_body
+    from sim.skeleton_data import clip_motion, grounded_joints
+    from sim.synth import SyntheticScene
+
+    body = load_body(sorted(list_presets())[0])
+    motion = clip_motion(CLIP.name)
+    root, joints = grounded_joints(motion, body)
+    c = joints[: n, 0].mean(axis=0)
+    shift = np.array([c[0], 0.0, c[2]])
+    c2w = look_at_camera(2.5, 1.4, 0.5)
+    cam = VirtualDepthCamera("oak-d", c2w, noise=NoiseModel(), seed=seed)
+    scene = SyntheticScene(motion=motion, body=body, camera=cam, root=root - shift, joints=joints - shift)
+    room = Room(boxes=(Box((1.8, 0.4, -1.0), (0.8, 0.8, 0.8)), Box((-2.0, 0.5, 0.8), (1.0, 1.0, 0.6))))
+    frames = []
+    for i in range(n):
+        depth = cam.render(scene.vertices(i), body.faces, room=room)
+        frames.append(DepthFrame(t_ns=1_000_000_000 + i * 33_333_333, sensor="oak", camera_to_world=c2w,
+                                 depth_mm=depth, intrinsics=cam.intrinsics))
+    return frames
+
+
+def timed(fn, items, warmup: int = 10) -> tuple[float, float]:
+    ts = []
+    for it in items:
+        t0 = time.perf_counter()
+        fn(it)
+        ts.append(time.perf_counter() - t0)
+    ms = np.array(ts[warmup:]) * 1e3
+    return float(np.median(ms)), float(np.percentile(ms, 95))
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--frames", type=int, default=150)
+    p.add_argument("--threads", type=int, default=1)
+    args = p.parse_args(argv)
+    frames = render_frames(args.frames)
+    print(f"{len(frames)} OAK-D 640x400 frames, onnxruntime threads={args.threads}")
+    rows = []
+    finder = PersonFinder(PreprocessConfig(num_points=256))
+    rows.append(("preprocess (PersonFinder)", *timed(finder.find, frames)))
+    clouds = [c for c in (PersonFinder(PreprocessConfig(num_points=256)).find(f) for f in frames) if c]
+    for label, path in (("ours", DEFAULT_MODEL), ("baseline PointNet", BASELINE_MODEL)):
+        if not path.is_file():
+            print(f"(no {path.name}: skipped)")
+            continue
+        reg = SkeletonRegressor(path, threads=args.threads)
+        rows.append((f"model alone: {label} ({reg.num_points} pts)", *timed(lambda c: reg(c.points), clouds * 2)))
+        stage = SkeletonStage(path, threads=args.threads)
+        rows.append((f"whole stage: {label}", *timed(stage.estimate, frames)))
+    print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
+    for name, med, p95 in rows:
+        print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")
+
+
+if __name__ == "__main__":
+    main()

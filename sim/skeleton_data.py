@@ -1,0 +1,331 @@
+"""Training and validation data for the skeleton regressor, from the simulated sensors.
+
+One sample = what the runtime sees and what it should answer: the person-frame point sample
+(N x 3 float32) that ``models.skeleton.preprocess.PersonFinder`` extracts from a rendered, noisy
+depth frame, and the true joints in that same person frame (22 x 3, i.e. inverse(to_world)
+applied to the world ground truth), plus metadata (clip, subject, body, camera, distance,
+visible-joint mask).
+
+Scenes: a real CMU clip (../shared/data/bvh) posed on a body of the body library, seen by a
+virtual depth camera (mostly the OAK-D preset) from a random placement around the performer
+(1.5-4 m, 0.6-1.9 m high, any yaw; ~10 % close-ups at 0.8-1.4 m with the legs out of frame) in a
+random room with clutter, sensor noise on. Work is cut into jobs (one clip window, one body, one
+camera, a few frames) run by a process pool; each job has its own seed, so the result does not
+depend on the number of workers.
+
+Splits are held out twice: by CMU subject (``VAL_SUBJECTS``; clips without a subject are training
+only) and by body (``VAL_BODIES``). "val" is the goal's setting (OAK-D, 1.5-4 m), "val_upper"
+the close-up setting of the upper-body goal. numpy / open3d only (no torch).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import multiprocessing as mp
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from live.errors import UserInputError
+from live.skeleton import LEFT_RIGHT_SWAP, NUM_JOINTS
+
+BVH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
+CACHE_DIR = Path(__file__).resolve().parents[1] / ".cache" / "skeleton_data"
+VAL_SUBJECTS = frozenset({7, 8, 12, 16})
+#: Body presets never seen in training (chosen to span sizes; see docs/skeleton.md).
+VAL_BODY_COUNT = 4
+SPLITS = ("train", "val", "val_upper")
+CAMERAS = ("oak-d", "oak-d-pro", "kinect-v1")
+STORED_POINTS = 512  # points kept per sample; training draws its N from these
+FRAMES_PER_JOB = 8
+
+
+@dataclass(frozen=True)
+class Clip:
+    file: str
+    subject: int | None  # None: no CMU subject (training only)
+
+
+def list_clips(bvh_dir: Path = BVH_DIR) -> list[Clip]:
+    """Every clip of index.csv that exists on disk, in file order."""
+    index = bvh_dir / "index.csv"
+    if not index.is_file():
+        raise UserInputError(f"no clip index at {index}")
+    clips = []
+    with open(index, newline="") as f:
+        for row in csv.DictReader(f):
+            if (bvh_dir / row["file"]).is_file():
+                s = (row.get("subject") or "").strip()
+                clips.append(Clip(row["file"], int(s) if s.isdigit() else None))
+    return sorted(clips, key=lambda c: c.file)
+
+
+def split_clips(clips: list[Clip], split: str) -> list[Clip]:
+    """Training clips: every subject not held out, and clips without a subject."""
+    if split == "train":
+        return [c for c in clips if c.subject is None or c.subject not in VAL_SUBJECTS]
+    return [c for c in clips if c.subject in VAL_SUBJECTS]
+
+
+def split_bodies(presets: list[str], split: str) -> list[str]:
+    """Hold out VAL_BODY_COUNT presets spread over the sorted list (deterministic)."""
+    names = sorted(presets)
+    if len(names) <= VAL_BODY_COUNT:
+        raise UserInputError(f"need more than {VAL_BODY_COUNT} body presets, found {len(names)}")
+    pick = np.linspace(1, len(names) - 1, VAL_BODY_COUNT).round().astype(int)
+    val = {names[i] for i in pick}
+    return [n for n in names if (n in val) == (split != "train")]
+
+
+@dataclass(frozen=True)
+class Job:
+    clip: str
+    subject: int
+    body: str
+    camera: str
+    closeup: bool
+    seed: int
+    split: str = "train"
+
+
+def plan_jobs(split: str, n_samples: int, seed: int) -> list[Job]:
+    """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped)."""
+    from live.body import list_presets
+
+    if split not in SPLITS:
+        raise UserInputError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")
+    clips = split_clips(list_clips(), split)
+    bodies = split_bodies(list_presets(), split)
+    rng = np.random.default_rng([seed, SPLITS.index(split)])
+    n_jobs = -(-int(n_samples * 1.05 + 1) // FRAMES_PER_JOB)
+    jobs = []
+    for k in range(n_jobs):
+        clip = clips[int(rng.integers(len(clips)))]
+        if split == "train":
+            camera = CAMERAS[int(rng.choice(3, p=[0.7, 0.15, 0.15]))]
+            closeup = bool(rng.random() < 0.1)
+        else:
+            camera, closeup = "oak-d", split == "val_upper"
+        jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject,
+                        bodies[int(rng.integers(len(bodies)))], camera, closeup,
+                        int(rng.integers(2**31)), split))
+    return jobs
+
+
+# ---------------------------------------------------------------------------- one job
+_MOTIONS: dict[str, object] = {}
+_BODIES: dict[str, object] = {}
+
+
+def clip_motion(file: str):
+    """The Motion of a clip of BVH_DIR (cached per process)."""
+    from live.rig_mapping import load_motion
+
+    if file not in _MOTIONS:
+        if len(_MOTIONS) > 200:  # bound worker memory (the library has ~120 clips)
+            _MOTIONS.clear()
+        _MOTIONS[file] = load_motion(BVH_DIR / file)
+    return _MOTIONS[file]
+
+
+def body_by_name(name: str):
+    """A body of the library (cached per process)."""
+    from live.body import load_body
+
+    if name not in _BODIES:
+        _BODIES[name] = load_body(name)
+    return _BODIES[name]
+
+
+def grounded_joints(motion, body) -> tuple[np.ndarray, np.ndarray]:
+    """(root (T,3), joints (T,22,3)) of the body performing the motion, shifted vertically so the
+    clip's typical lowest joint sits where the body's does standing (some converted clips float
+    or sink by up to a metre; a performer in the data must stand on the floor)."""
+    from sim.synth import pose_motion_on_body
+
+    root, joints = pose_motion_on_body(motion, body)
+    lowest = np.percentile(joints[:, :, 1].min(axis=1), 5)
+    dy = float(np.asarray(body.rest_joints)[:, 1].min() - lowest)
+    root = root + np.array([0.0, dy, 0.0])
+    return root, joints + np.array([0.0, dy, 0.0])
+
+
+def visible_joints(joints_world: np.ndarray, camera) -> np.ndarray:
+    """(22,) bool: joint in front of the camera (beyond its min range) and inside the image."""
+    c2w = camera.camera_to_world
+    cam = (joints_world - c2w[:3, 3]) @ c2w[:3, :3]
+    p = camera.preset
+    z = np.maximum(cam[:, 2], 1e-6)
+    u = cam[:, 0] / z * p.fx + p.cx
+    v = cam[:, 1] / z * p.fy + p.cy
+    return (cam[:, 2] > p.min_range_m) & (u >= 0) & (u < p.width) & (v >= 0) & (v < p.height)
+
+
+def clear_view(room, eye: np.ndarray, margin_m: float = 0.4):
+    """The room grown to hold the camera, without the clutter boxes that stand between the
+    camera at ``eye`` (3,) and the performer at the origin (we train on people in clear view)."""
+    from dataclasses import replace
+
+    cam = np.asarray(eye, np.float64)[[0, 2]]
+    keep = []
+    for box in room.boxes:
+        c = np.asarray(box.center)[[0, 2]]
+        r = 0.5 * np.hypot(box.size[0], box.size[2]) + margin_m
+        t = np.clip(c @ cam / max(cam @ cam, 1e-9), 0.0, 1.0)  # closest point of the sight line
+        if np.linalg.norm(c - t * cam) > r:
+            keep.append(box)
+    reach = 2.0 * float(np.abs(cam).max()) + 1.5
+    return replace(room, width=max(room.width, reach), depth=max(room.depth, reach), boxes=tuple(keep))
+
+
+def run_job(job: Job) -> dict[str, np.ndarray]:
+    """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
+    from live.frames import DepthFrame
+    from models.skeleton.preprocess import PersonFinder, PreprocessConfig
+    from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
+    from sim.room import random_room
+    from sim.synth import SyntheticScene
+
+    rng = np.random.default_rng(job.seed)
+    motion, body = clip_motion(job.clip), body_by_name(job.body)
+    root, joints = grounded_joints(motion, body)
+    t = len(root)
+    span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
+    start = int(rng.integers(0, t - span + 1))
+    frames = np.sort(rng.choice(np.arange(start, start + span), min(FRAMES_PER_JOB, span), replace=False))
+    # Centre the window on the origin, where the room keeps its clutter away from the subject.
+    centre = joints[frames, 0].mean(axis=0)
+    shift = np.array([centre[0], 0.0, centre[2]])
+    root, joints = root - shift, joints - shift
+    if job.closeup:
+        distance, height = rng.uniform(0.8, 1.4), rng.uniform(1.2, 1.7)
+        target = (0.0, float(rng.uniform(1.1, 1.4)), 0.0)
+    else:
+        distance, height = rng.uniform(1.5, 4.0), rng.uniform(0.6, 1.9)
+        target = (0.0, 1.0, 0.0)
+    c2w = look_at_camera(distance, height, rng.uniform(-np.pi, np.pi), target=target)
+    noise = NoiseModel(disparity_sigma_px=None if rng.random() < 0.7 else float(rng.uniform(0.05, 0.3)),
+                       dropout=float(rng.uniform(0.0, 0.03)))
+    camera = VirtualDepthCamera(job.camera, c2w, noise=noise, seed=job.seed)
+    scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
+    room = clear_view(random_room(rng, keep_out_m=1.0), c2w[:3, 3])
+    # Training samples: one pass at the full stride; validation samples: the runtime's
+    # coarse-to-fine pass (both draw uniformly from the same person pixels; docs/skeleton.md).
+    coarse = PreprocessConfig.coarse_stride if job.split != "train" else None
+    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, coarse_stride=coarse))
+    out: dict[str, list] = {k: [] for k in ("points", "joints", "visible", "frame", "distance", "count")}
+    for i in frames:
+        depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
+        frame = DepthFrame(t_ns=int(job.seed) * 1000 + int(i), sensor="sim", camera_to_world=c2w,
+                           depth_mm=depth_mm, intrinsics=camera.intrinsics)
+        person = finder.find(frame)
+        if person is None:
+            continue
+        inv = np.linalg.inv(person.to_world)
+        local = joints[i] @ inv[:3, :3].T + inv[:3, 3]
+        # A cluster that is not the performer (clutter picked instead) is not a sample.
+        if np.hypot(local[0, 0], local[0, 2]) > 0.6:
+            continue
+        out["points"].append(person.points)
+        out["joints"].append(local.astype(np.float32))
+        out["visible"].append(visible_joints(joints[i], camera))
+        out["frame"].append(int(i))
+        out["distance"].append(float(np.hypot(*(c2w[[0, 2], 3] - joints[i, 0, [0, 2]]))))
+        out["count"].append(person.count)
+    n = len(out["points"])
+    arrays = {
+        "points": np.asarray(out["points"], np.float32).reshape(n, STORED_POINTS, 3),
+        "joints": np.asarray(out["joints"], np.float32).reshape(n, NUM_JOINTS, 3),
+        "visible": np.asarray(out["visible"], bool).reshape(n, NUM_JOINTS),
+        "frame": np.asarray(out["frame"], np.int32),
+        "distance": np.asarray(out["distance"], np.float32),
+        "count": np.asarray(out["count"], np.int32),
+        "attempted": np.array([len(frames)], np.int32),
+    }
+    return arrays
+
+
+# ---------------------------------------------------------------------------- the dataset
+def _cache_path(split: str, n_samples: int, seed: int) -> Path:
+    key = json.dumps({"split": split, "n": n_samples, "seed": seed, "v": 3,
+                      "val_subjects": sorted(VAL_SUBJECTS)}, sort_keys=True)
+    return CACHE_DIR / f"{split}_{n_samples}_{seed}_{hashlib.sha1(key.encode()).hexdigest()[:8]}.npz"
+
+
+def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
+             progress: bool = False) -> dict[str, np.ndarray]:
+    """The samples of a split (cached under .cache/skeleton_data).
+
+    Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
+    visible (S,22) bool, clip / body / camera (S,) str, subject (S,) int32 (-1 = none),
+    closeup (S,) bool, frame (S,) int32, distance (S,) float32 (camera to pelvis, horizontal),
+    count (S,) int32 (person points found); S <= n_samples (frames where the finder failed are
+    dropped; ``failed`` counts them)."""
+    path = _cache_path(split, n_samples, seed)
+    if cache and path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    jobs = plan_jobs(split, n_samples, seed)
+    results = []
+    if workers > 1:
+        ctx = mp.get_context("fork")
+        with ctx.Pool(workers) as pool:
+            it = pool.imap(run_job, jobs, chunksize=2)
+            results = list(_progress(it, len(jobs), split) if progress else it)
+    else:
+        results = [run_job(j) for j in (_progress(jobs, len(jobs), split) if progress else jobs)]
+    data = _concat(jobs, results, n_samples)
+    if cache:
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, **data)
+        tmp.replace(path)
+    return data
+
+
+def _progress(it, total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(it, total=total, desc=f"data {desc}", unit="job", mininterval=5.0)
+
+
+def _concat(jobs: list[Job], results: list[dict], n_samples: int) -> dict[str, np.ndarray]:
+    meta = {"clip": [], "body": [], "camera": [], "subject": [], "closeup": []}
+    for job, r in zip(jobs, results):
+        n = len(r["frame"])
+        for key in meta:
+            meta[key] += [getattr(job, key)] * n
+    data = {k: np.concatenate([r[k] for r in results])[:n_samples] for k in results[0] if k != "attempted"}
+    data["clip"] = np.array(meta["clip"][:n_samples])
+    data["body"] = np.array(meta["body"][:n_samples])
+    data["camera"] = np.array(meta["camera"][:n_samples])
+    data["subject"] = np.array(meta["subject"][:n_samples], np.int32)
+    data["closeup"] = np.array(meta["closeup"][:n_samples], bool)
+    data["failed"] = np.array(sum(int(r["attempted"][0]) - len(r["frame"]) for r in results), np.int64)
+    return data
+
+
+def mirror(points: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mirror augmentation in the person frame: x -> -x, left and right joints swapped.
+    points (..., N, 3), joints (..., 22, 3). The camera stays toward +z, so it is a valid view."""
+    flip = np.array([-1.0, 1.0, 1.0], np.float32)
+    return points * flip, (joints * flip)[..., LEFT_RIGHT_SWAP, :]
+
+
+def describe(data: dict[str, np.ndarray]) -> dict:
+    """Counts for the model card."""
+    return {"samples": int(len(data["points"])), "clips": int(len(np.unique(data["clip"]))),
+            "bodies": sorted(np.unique(data["body"]).tolist()),
+            "subjects": sorted(int(s) for s in np.unique(data["subject"])),
+            "cameras": {c: int((data["camera"] == c).sum()) for c in np.unique(data["camera"])},
+            "closeups": int(data["closeup"].sum()), "dropped_frames": int(data.get("failed", 0)),
+            "distance_m": [round(float(data["distance"].min()), 2), round(float(data["distance"].max()), 2)]}
+
+
+__all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
+           "plan_jobs", "run_job",
+           "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
+           "SPLITS", "CAMERAS", "STORED_POINTS"]

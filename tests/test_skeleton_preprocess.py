@@ -1,0 +1,135 @@
+"""Finding the person in a depth frame: clutter, walls, no one in view, unknown floor, filters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from live.frames import DepthFrame
+from live.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
+from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
+from models.skeleton.preprocess import BackgroundModel, PersonFinder, PreprocessConfig
+from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
+from sim.room import Box, Room, capsule_body
+
+JOINTS = default_rest_joints(1.75).astype(np.float64)
+# Arms down a little so that the capsule person is a compact, human-like cluster.
+PERSON = capsule_body(JOINTS)
+ROOM = Room(width=9.0, depth=9.0, boxes=(Box((1.6, 0.4, -0.8), (0.8, 0.8, 0.8)),
+                                         Box((-2.0, 0.6, 0.5), (1.2, 1.2, 0.6))))
+
+
+def frame(c2w: np.ndarray, mesh=PERSON, room=ROOM, t_ns: int = 1_000, noise=None, seed: int = 0,
+          identity_extrinsics: bool = False) -> DepthFrame:
+    cam = VirtualDepthCamera("oak-d", c2w, noise=noise or NoiseModel(), seed=seed)
+    depth = cam.render(*mesh, room=room) if mesh is not None else cam.render(
+        np.zeros((3, 3), np.float32), np.zeros((0, 3), np.int32), room=room)
+    return DepthFrame(t_ns=t_ns, sensor="cam", camera_to_world=np.eye(4) if identity_extrinsics else c2w,
+                      depth_mm=depth, intrinsics=cam.intrinsics)
+
+
+FRONT = look_at_camera(3.0, 1.3, 0.4)
+
+
+def test_person_found_in_clutter_and_mapped_back_exactly():
+    finder = PersonFinder()
+    cloud = finder.find(frame(FRONT))
+    assert cloud is not None and cloud.points.shape == (512, 3) and cloud.points.dtype == np.float32
+    # The person frame: origin on the floor under the person, camera toward +z.
+    assert np.hypot(*cloud.to_world[[0, 2], 3]) < 0.15
+    assert 1.6 < cloud.height_m < 1.95
+    cam_local = np.linalg.inv(cloud.to_world) @ np.r_[FRONT[:3, 3], 1.0]
+    assert abs(cam_local[0]) < 1e-6 and cam_local[2] > 2.5
+    # Every sample point maps back onto the person (within the sensor noise of the capsules).
+    world = cloud.points @ cloud.to_world[:3, :3].T + cloud.to_world[:3, 3]
+    assert np.all(np.abs(world[:, [0, 2]]).max(axis=1) < 0.9)
+    assert world[:, 1].min() > 0.0 and world[:, 1].max() < 1.95
+    assert finder.counters.found == 1
+
+
+def test_sample_is_deterministic_per_frame():
+    f = frame(FRONT)
+    a, b = PersonFinder().find(f), PersonFinder().find(f)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.to_world, b.to_world)
+
+
+def test_nobody_in_view_gives_none():
+    finder = PersonFinder()
+    assert finder.find(frame(FRONT, mesh=None)) is None
+    assert finder.counters.nobody == 1 and finder.counters.found == 0
+
+
+def test_wall_right_behind_the_person_is_not_the_person():
+    room = Room(width=6.0, depth=6.0, boxes=())  # back wall at z = -3, 0.4 m behind the person
+    person = capsule_body(JOINTS + [0.0, 0.0, -2.6])
+    c2w = look_at_camera(2.5, 1.3, 0.2, target=(0.0, 1.0, -2.6))
+    cloud = PersonFinder().find(frame(c2w, mesh=person, room=room))
+    assert cloud is not None and np.hypot(cloud.to_world[0, 3], cloud.to_world[2, 3] + 2.6) < 0.15
+    assert cloud.height_m < 1.95
+
+
+def test_big_box_with_more_points_loses_to_the_person():
+    room = Room(width=9.0, depth=9.0, boxes=(Box((1.3, 0.55, 1.0), (1.0, 1.1, 1.0)),))
+    cloud = PersonFinder().find(frame(look_at_camera(3.5, 1.5, 0.3), room=room))
+    assert cloud is not None and np.hypot(*cloud.to_world[[0, 2], 3]) < 0.15
+
+
+def test_unknown_extrinsics_floor_by_ransac():
+    finder = PersonFinder()
+    cloud = finder.find(frame(FRONT, identity_extrinsics=True, room=Room(width=9.0, depth=9.0)))
+    assert cloud is not None
+    # Heights are above the estimated floor: the head is ~1.75 m high whatever the camera pose.
+    assert 1.6 < cloud.height_m < 1.95
+    assert finder._floor_c2w is not None
+
+
+def test_close_up_with_legs_out_of_frame_is_still_found():
+    c2w = look_at_camera(1.0, 1.5, 0.0, target=(0.0, 1.35, 0.0))
+    cloud = PersonFinder().find(frame(c2w))
+    assert cloud is not None
+    assert cloud.points[:, 1].min() > 0.5  # only the upper body is seen
+
+
+def test_background_model_removes_static_scene():
+    bg = BackgroundModel()
+    empty = frame(FRONT, mesh=None)
+    bg.learn(empty.depth_mm)
+    finder = PersonFinder(background=bg)
+    cloud = finder.find(frame(FRONT))
+    assert cloud is not None and np.hypot(*cloud.to_world[[0, 2], 3]) < 0.15
+    assert PersonFinder(background=bg).find(empty) is None
+
+
+def test_one_euro_is_smooth_when_still_and_follows_motion():
+    rng = np.random.default_rng(0)
+    f = OneEuroFilter(min_cutoff=1.0, beta=0.5)
+    noisy = JOINTS + rng.normal(0, 0.01, (60,) + JOINTS.shape)
+    out = np.array([f(x, i / 30) for i, x in enumerate(noisy)])
+    assert np.std(out[30:] - JOINTS, axis=0).mean() < 0.5 * np.std(noisy[30:] - JOINTS, axis=0).mean()
+    fast = OneEuroFilter(min_cutoff=1.0, beta=3.0)  # beta: less lag at speed
+    moving = [JOINTS + [0.03 * i, 0, 0] for i in range(60)]  # 0.9 m/s
+    out = np.array([fast(x, i / 30) for i, x in enumerate(moving)])
+    assert np.abs(out[-1] - moving[-1]).max() < 0.03
+
+
+def test_flip_guard_and_bone_keeper():
+    guard = FlipGuard()
+    walk = JOINTS.copy()
+    guard(walk)
+    fixed = guard(walk[LEFT_RIGHT_SWAP] + 0.005)
+    assert guard.flips == 1 and np.abs(fixed - walk).max() < 0.01
+    keeper = BoneLengthKeeper(warmup_frames=5)
+    conf = np.ones(22, np.float32)
+    for _ in range(6):
+        keeper(JOINTS, conf)
+    stretched = JOINTS.copy()
+    stretched[20] += [0.1, 0.0, 0.0]  # the left wrist 10 cm too far
+    out = keeper(stretched, conf)
+    assert abs(np.linalg.norm(out[20] - out[18]) - np.linalg.norm(JOINTS[20] - JOINTS[18])) < 1e-6
+
+
+def test_joint_confidence_support():
+    pts = np.random.default_rng(0).normal(JOINTS[15], 0.03, (50, 3))
+    conf = joint_confidence(JOINTS, pts)
+    assert conf[15] == pytest.approx(1.0) and conf[7] == 0.0 and conf.dtype == np.float32
