@@ -15,7 +15,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 from live import __version__
-from live.errors import LivecapError, UserInputError
+from live.errors import LivecapError
 
 EXIT_USER_ERROR = 2
 

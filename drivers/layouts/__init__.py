@@ -7,10 +7,9 @@ A layout file is JSON ``{"sensors": {"<id>": "<segment>", ...}}`` (optional "nam
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from live.errors import FormatError, UserInputError
+from live.errors import FormatError
 from live.skeleton import JOINT_INDEX
 
 LAYOUT_DIR = Path(__file__).resolve().parent
@@ -47,11 +46,7 @@ def parse_layout(obj: object, *, path: str | None = None) -> dict[int, int]:
 
 def load_layout(path: str | Path | None = None) -> dict[int, int]:
     """Read a layout file (default: the 15-sensor full body) -> {sensor id: joint index}."""
+    from live.jsonfile import read_json
+
     p = Path(path) if path is not None else DEFAULT_LAYOUT
-    try:
-        obj = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise UserInputError(f"layout file not found: {p}") from None
-    except json.JSONDecodeError as e:
-        raise FormatError(f"not JSON: {e.msg}", path=str(p), line=e.lineno) from None
-    return parse_layout(obj, path=str(p))
+    return parse_layout(read_json(p), path=str(p))

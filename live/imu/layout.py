@@ -13,14 +13,13 @@ heading from a single static pose; the exact mounting comes out of the calibrati
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from drivers.layouts import DEFAULT_LAYOUT, parse_layout
-from live.errors import FormatError, UserInputError
+from live.errors import FormatError
 from live.rotations import quat_normalize
 from live.skeleton import JOINT_NAMES
 
@@ -94,11 +93,7 @@ def load_suit_layout(spec: str | Path | dict | SuitLayout | None = None) -> Suit
         if spec and all(isinstance(k, int) for k in spec):  # {sensor id: joint index}
             spec = {"name": "suit", "sensors": {str(s): JOINT_NAMES[j] for s, j in spec.items()}}
         return parse_suit_layout(spec)
+    from live.jsonfile import read_json
+
     p = Path(spec) if spec is not None else DEFAULT_LAYOUT
-    try:
-        obj = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise UserInputError(f"layout file not found: {p}") from None
-    except json.JSONDecodeError as e:
-        raise FormatError(f"not JSON: {e.msg}", path=str(p), line=e.lineno) from None
-    return parse_suit_layout(obj, path=str(p))
+    return parse_suit_layout(read_json(p), path=str(p))

@@ -10,7 +10,6 @@ so the pipeline can swap them (``--retarget analytic|learned``). See docs/learne
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -55,25 +54,15 @@ class LearnedRetargeter:
 
     def __init__(self, model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,
                  *, fps: float = 30.0, threads: int = 1):
-        import onnxruntime as ort
+        from live.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
-        if not self.path.is_file():
-            raise ModelError(f"no retargeting model at {self.path} (train one: livecap train retarget)")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(int(threads), 1)
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own types for unreadable graphs
-            raise ModelError(f"cannot load retargeting model {self.path}: {exc}") from exc
+        self.session, self.card = open_session(self.path, threads=threads, what="retargeting model",
+                                               retrain="livecap train retarget")
         shapes = {i.name: i.shape for i in self.session.get_inputs()}
         if set(shapes) != {"source", "target", "h_enc", "h_dec"}:
             raise ModelError(f"{self.path.name}: expected inputs source, target, h_enc, h_dec; got {sorted(shapes)}")
         self._h_shapes = {k: tuple(int(d) for d in shapes[k]) for k in ("h_enc", "h_dec")}
-        card = self.path.with_suffix(".json")
-        self.card: dict = json.loads(card.read_text()) if card.is_file() else {}
         self.source_rest = np.asarray(source_rest, np.float64)
         self.target_rest = np.asarray(target_rest, np.float64)
         for name, rest in (("source_rest", self.source_rest), ("target_rest", self.target_rest)):

@@ -23,18 +23,11 @@ class SkinningFieldModel:
     """An exported skinning field. ``weights(points (N, 3), rest_joints (22, 3)) -> (N, 22)``."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1, chunk: int = 65536):
-        import onnxruntime as ort
+        from live.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
-        if not self.path.is_file():
-            raise ModelError(f"no skinning field at {self.path} (train one: python -m models.train.train_skinning)")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(int(threads), 1)
-        opts.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own types for unreadable graphs
-            raise ModelError(f"cannot load skinning field {self.path}: {exc}") from exc
+        self.session, self.card = open_session(self.path, threads=threads, what="skinning field",
+                                               retrain="livecap train skinning")
         names = sorted(i.name for i in self.session.get_inputs())
         if names != ["joints", "points"]:
             raise ModelError(f"{self.path.name}: expected inputs points, joints; got {names}")

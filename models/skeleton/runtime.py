@@ -10,7 +10,6 @@ temporal state is reset once the person has been gone for ``reset_after_s``.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -34,25 +33,15 @@ class SkeletonRegressor:
     its model card next to the .onnx file; 256 when there is no card)."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1):
-        import onnxruntime as ort
+        from live.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
-        if not self.path.is_file():
-            raise ModelError(f"no skeleton model at {self.path} (train one: livecap train skeleton)")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = max(int(threads), 1)
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own types for unreadable graphs
-            raise ModelError(f"cannot load skeleton model {self.path}: {exc}") from exc
+        self.session, self.card = open_session(self.path, threads=threads, what="skeleton model",
+                                               retrain="livecap train skeleton")
         inputs = self.session.get_inputs()
         if len(inputs) != 1 or inputs[0].shape[-1] != 3:
             raise ModelError(f"{self.path.name}: expected one (B, N, 3) input, got {[i.shape for i in inputs]}")
         self._input = inputs[0].name
-        card = self.path.with_suffix(".json")
-        self.card: dict = json.loads(card.read_text()) if card.is_file() else {}
         self.num_points = int(self.card.get("num_points", 256))
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
