@@ -179,13 +179,12 @@ def body_from_npz_bytes(data: bytes, source: str = "body.npz") -> Body:
 
 def _build_anny(spec: str) -> Body:
     phenotype = parse_anny_spec(spec)  # bad specs fail the same way with or without torch
-    try:
-        import anny  # noqa: F401 - the train extra is what makes anny: specs work
-        import torch  # noqa: F401
+    import importlib.util
 
-        from models.train.export_bodies import build_body
-    except ImportError:
-        raise UserInputError("building an anny: body needs the train extra: pip install 'livecap[train]'") from None
+    # Look for the train extra without importing it here; export_bodies imports it when building.
+    if any(importlib.util.find_spec(m) is None for m in ("torch", "anny")):
+        raise UserInputError("building an anny: body needs the train extra: pip install 'livecap[train]'")
+    from models.train.export_bodies import build_body
     name = "anny:" + ",".join(f"{k}={phenotype[k]:g}" for k in ANNY_KEYS)
     return build_body(phenotype, name)
 

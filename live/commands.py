@@ -268,11 +268,10 @@ _TRAINERS = {"skeleton": "models.train.train_skeleton", "retarget": "models.trai
 
 def cmd_train(args) -> int:
     import importlib
+    import importlib.util
 
-    try:
-        import torch  # noqa: F401 - only to give a clear message when the extra is missing
-    except ImportError:
-        raise UserInputError("training needs the train extra: pip install -e '.[train]'") from None
+    if importlib.util.find_spec("torch") is None:
+        raise UserInputError("training needs the train extra: pip install -e '.[train]'")
     module = importlib.import_module(_TRAINERS[args.what])
     extra = [a for a in args.args if a != "--"]
     if args.quick:
