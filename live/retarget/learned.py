@@ -112,15 +112,9 @@ class LearnedRetargeter:
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
-        dt = None
-        if self._last_t_ns is not None and frame.t_ns > self._last_t_ns:
-            dt = (frame.t_ns - self._last_t_ns) * 1e-9
-        self._last_t_ns = frame.t_ns
-        if isinstance(frame, SkeletonFrame):
-            root, rot, joints = self.step(frame.joints, dt=dt)
-        else:
-            root, rot, joints = self.step(frame.rotations, frame.root, dt=dt)
-        return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
+        from live.retarget.stage import process_frame
+
+        return process_frame(self, frame)
 
 
 def learned_retarget_motion(model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,

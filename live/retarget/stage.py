@@ -24,6 +24,19 @@ _LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)
 _ARM_HINGES = np.array([limb[3] for limb in LIMBS[2:]], dtype=np.float64)
 
 
+def process_frame(retargeter, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
+    """One frame through any retargeter with ``step`` and ``_last_t_ns`` (analytic, learned)."""
+    dt = None
+    if retargeter._last_t_ns is not None and frame.t_ns > retargeter._last_t_ns:
+        dt = (frame.t_ns - retargeter._last_t_ns) * 1e-9
+    retargeter._last_t_ns = frame.t_ns
+    if isinstance(frame, SkeletonFrame):
+        root, rot, joints = retargeter.step(frame.joints, dt=dt)
+    else:
+        root, rot, joints = retargeter.step(frame.rotations, frame.root, dt=dt)
+    return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
+
+
 class AnalyticRetargeter:
     """Stateful, frame-by-frame retargeter from a source body to a target body.
 
@@ -110,15 +123,7 @@ class AnalyticRetargeter:
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
-        dt = None
-        if self._last_t_ns is not None and frame.t_ns > self._last_t_ns:
-            dt = (frame.t_ns - self._last_t_ns) * 1e-9
-        self._last_t_ns = frame.t_ns
-        if isinstance(frame, SkeletonFrame):
-            root, rot, joints = self.step(frame.joints, dt=dt)
-        else:
-            root, rot, joints = self.step(frame.rotations, frame.root, dt=dt)
-        return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
+        return process_frame(self, frame)
 
 
 def retarget_motion(
