@@ -32,6 +32,7 @@ from live.skeleton import JOINT_INDEX, pelvis_height
 from live.skinning import lbs
 from live.sources import StreamInfo
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
+from sim.room import Room
 
 #: Session timestamps start here (3 s: room for a 2 s IMU calibration hold before the first frame), so that replayed files never depend on the wall clock.
 T0_NS = 3_000_000_000
@@ -87,6 +88,7 @@ class SyntheticScene:
     camera: VirtualDepthCamera
     root: np.ndarray
     joints: np.ndarray
+    room: Room = field(default_factory=Room)
 
     @classmethod
     def build(cls, motion: Motion, body: Body, *, camera: str = "oak-d", fps: float | None = None,
@@ -98,12 +100,18 @@ class SyntheticScene:
             preset = dataclasses.replace(preset, max_range_m=float(max_range_m))
         motion = resample(motion, fps or preset.fps)
         root, joints = pose_motion_on_body(motion, body)
-        placement = placement or CameraPlacement()
+        # The room is centred on the origin: move the performance area there (x, z only).
         center = performance_center(joints)
+        shift = np.array([center[0], 0.0, center[2]])
+        root, joints = root - shift, joints - shift
+        placement = placement or CameraPlacement()
         c2w = look_at_camera(placement.distance, placement.height, placement.yaw, placement.pitch,
-                             target=tuple(center))
+                             target=(0.0, 1.0, 0.0))
+        # Grow the room so the camera stands inside it, whatever the placement.
+        reach = 2.0 * (np.abs(c2w[[0, 2], 3]).max() + 0.5)
+        room = Room(width=max(Room().width, reach), depth=max(Room().depth, reach))
         cam = VirtualDepthCamera(preset, c2w, noise=noise if noise is not None else NoiseModel(), seed=seed)
-        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints)
+        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints, room=room)
 
     @property
     def num_frames(self) -> int:
@@ -119,7 +127,7 @@ class SyntheticScene:
                            root=self.root[i].astype(np.float32))
 
     def depth(self, i: int, t_ns: int, sensor: str = "cam") -> DepthFrame:
-        depth_mm = self.camera.render(self.vertices(i), self.body.faces)
+        depth_mm = self.camera.render(self.vertices(i), self.body.faces, room=self.room)
         return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=self.camera.camera_to_world,
                           depth_mm=depth_mm, intrinsics=self.camera.intrinsics)
 
