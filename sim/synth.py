@@ -89,6 +89,9 @@ class SyntheticScene:
     root: np.ndarray
     joints: np.ndarray
     room: Room = field(default_factory=Room)
+    #: (3,) what was subtracted from the motion to centre it in the room (add it back to compare
+    #: with the motion's own coordinates).
+    shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @classmethod
     def build(cls, motion: Motion, body: Body, *, camera: str = "oak-d", fps: float | None = None,
@@ -111,7 +114,7 @@ class SyntheticScene:
         reach = 2.0 * (np.abs(c2w[[0, 2], 3]).max() + 0.5)
         room = Room(width=max(Room().width, reach), depth=max(Room().depth, reach))
         cam = VirtualDepthCamera(preset, c2w, noise=noise if noise is not None else NoiseModel(), seed=seed)
-        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints, room=room)
+        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints, room=room, shift=shift)
 
     @property
     def num_frames(self) -> int:

@@ -75,7 +75,7 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
         t_ns = 1_000_000_000 + int(round(i * 1e9 / motion.fps))
         sk = stage.estimate(scene.depth(i, t_ns))
         if sk is not None:
-            out[i] = sk.joints
+            out[i] = sk.joints + scene.shift  # back to the motion's own coordinates
     found = ~np.isnan(out[:, 0, 0])
     if not found.any():
         raise UserInputError("the skeleton stage found nobody in any frame")
