@@ -13,7 +13,6 @@ Layout of a livecap session:
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from collections.abc import Iterator
@@ -239,10 +238,3 @@ def _decode(stream: StreamInfo, message: Message) -> object:
     if stream.kind == "gt":
         return codec.decode_truth(message.data)
     raise SessionError(f"unknown stream kind {stream.kind!r}")
-
-
-def body_from_npz_bytes(data: bytes) -> dict:
-    import numpy as np
-
-    with np.load(io.BytesIO(data), allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}

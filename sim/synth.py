@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import threading
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from live.body import Body, load_body
+from live.body import Body, load_body, save_body
 from live.errors import UserInputError
 from live.frames import DepthFrame, GroundTruth
 from live.kinematics import forward_kinematics
@@ -143,12 +142,9 @@ class SyntheticScene:
 
 
 def body_npz_bytes(body: Body) -> bytes:
-    """The body-file contract as bytes (numpy only, no pickles)."""
+    """The body file (CONVENTIONS.md contract) as bytes, written by live.body.save_body."""
     buf = io.BytesIO()
-    np.savez_compressed(buf, vertices=body.vertices.astype(np.float32), faces=body.faces.astype(np.int32),
-                        rest_joints=body.rest_joints.astype(np.float32), weights=body.weights.astype(np.float32),
-                        parents=np.asarray(body.parents, np.int32), name=np.array(body.name),
-                        phenotype=np.array(json.dumps(body.phenotype or {})))
+    save_body(buf, body)
     return buf.getvalue()
 
 
