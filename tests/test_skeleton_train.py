@@ -50,3 +50,25 @@ def test_networks_shapes_and_reference_normalisation():
     shift = torch.tensor([0.5, -0.2, 1.0])
     with torch.no_grad():
         np.testing.assert_allclose((net(pts + shift) - shift).numpy(), net(pts).numpy(), atol=1e-5)
+
+
+def test_refinement_stage_votes_from_each_joints_nearest_points():
+    """With its last layer zeroed (uniform weights, no offsets), a refinement stage returns, for
+    every joint, the mean of the k sample points nearest the previous estimate: the gather picks
+    the right points for every joint of every cloud in the batch."""
+    from models.train.skeleton_nets import VotingPointNet
+
+    torch.manual_seed(1)
+    net = VotingPointNet(refine_k=5, refine_width=16, refine_stages=1).eval()
+    last = net.refine[0].mlp[-1]
+    torch.nn.init.zeros_(last.weight)
+    torch.nn.init.zeros_(last.bias)
+    pts = torch.rand(2, 64, 3)
+    with torch.no_grad():
+        refined = net(pts).numpy()
+    coarse = net.last_coarse[0].detach().numpy()
+    p = pts.numpy()
+    for b in range(2):
+        for j in range(22):
+            near = np.argsort(((p[b] - coarse[b, j]) ** 2).sum(-1))[:5]
+            np.testing.assert_allclose(refined[b, j], p[b, near].mean(axis=0), atol=1e-5)

@@ -13,7 +13,10 @@ the same way.
 - ``VotingPointNet`` (ours): every point votes for every joint. A shared per-point MLP
   (3->64->128), a global max-pooled feature (->256), then per point and joint a weight logit and
   a 3D offset; joint j = sum_n softmax_n(w_nj) * (p_n + o_nj). Votes are local, so a joint is
-  placed from the points near it; ~0.2 M parameters.
+  placed from the points near it; ~0.2 M parameters. With ``refine_k > 0`` a second,
+  local stage follows: for each joint, the k points nearest its first estimate vote again from
+  their own features and their offset to that estimate (a cascade, as in hand-pose regressors
+  from depth), which sharpens the far limbs that the global context places only roughly.
 """
 
 from __future__ import annotations
@@ -97,13 +100,42 @@ class _PointLinear(nn.Module):
         return torch.relu(self.norm(y.reshape(b * n, c)).reshape(b, n, c))
 
 
+class _LocalRefine(nn.Module):
+    """One cascade stage: each joint's ``k`` nearest points vote again for it, from their point
+    features, their offset to the current estimate and a learned per-joint code."""
+
+    def __init__(self, num_joints: int, width: int, refine_width: int, k: int):
+        super().__init__()
+        self.k = k
+        self.feature = nn.Linear(width, refine_width)  # per point, before the gather (cheaper)
+        self.offset = nn.Linear(3, refine_width, bias=False)
+        self.joint_code = nn.Parameter(torch.zeros(num_joints, refine_width))
+        self.mlp = nn.Sequential(nn.ReLU(), nn.Linear(refine_width, refine_width), nn.ReLU(),
+                                 nn.Linear(refine_width, 4))
+
+    def forward(self, points: torch.Tensor, f: torch.Tensor, joints: torch.Tensor) -> torch.Tensor:
+        b = points.shape[0]
+        j, k = joints.shape[1], self.k
+        dist = ((joints.unsqueeze(2) - points.unsqueeze(1)) ** 2).sum(-1)  # B x J x N
+        idx = torch.topk(dist, k, dim=2, largest=False).indices.reshape(b, j * k)
+        near = torch.gather(points, 1, idx.unsqueeze(-1).expand(b, j * k, 3)).reshape(b, j, k, 3)
+        feat = self.feature(f)
+        c = feat.shape[-1]
+        feat = torch.gather(feat, 1, idx.unsqueeze(-1).expand(b, j * k, c)).reshape(b, j, k, c)
+        h = feat + self.offset(near - joints.unsqueeze(2)) + self.joint_code.reshape(1, j, 1, c)
+        out = self.mlp(h)  # B x J x K x 4
+        weights = torch.softmax(out[..., 0], dim=2)
+        votes = near + 0.25 * out[..., 1:]
+        return (weights.unsqueeze(-1) * votes).sum(dim=2)
+
+
 class VotingPointNet(nn.Module):
     """Our model: per-point votes for every joint. points B x N x 3 -> joints B x 22 x 3."""
 
     kind = "ours"
 
     def __init__(self, num_joints: int = NUM_JOINTS, width: int = 128, global_width: int = 256,
-                 rounds: int = 2):
+                 rounds: int = 2, refine_k: int = 0, refine_width: int = 64, refine_stages: int = 1):
         super().__init__()
         self.num_joints = num_joints
         self.local = nn.ModuleList([_PointLinear(3, 64), _PointLinear(64, width)])
@@ -115,6 +147,9 @@ class VotingPointNet(nn.Module):
         self.mix_global = nn.ModuleList(nn.Linear(global_width, width) for _ in range(rounds))
         self.mix = nn.ModuleList(_PointLinear(width, width) for _ in range(rounds))
         self.head = nn.Linear(width, num_joints * 4)
+        self.refine = nn.ModuleList(_LocalRefine(num_joints, width, refine_width, refine_k)
+                                    for _ in range(refine_stages if refine_k else 0))
+        self.last_coarse: list[torch.Tensor] = []  # the earlier stages' joints (training loss)
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         b, n, _ = points.shape
@@ -127,17 +162,22 @@ class VotingPointNet(nn.Module):
         out = self.head(f).reshape(b, n, self.num_joints, 4)
         weights = torch.softmax(out[..., 0], dim=1)  # over points: B x N x J
         votes = points.unsqueeze(2) + 0.5 * out[..., 1:]  # B x N x J x 3 (offsets ~metres)
-        return (weights.unsqueeze(-1) * votes).sum(dim=1)
+        joints = (weights.unsqueeze(-1) * votes).sum(dim=1)
+        self.last_coarse = []
+        for stage in self.refine:
+            self.last_coarse.append(joints)
+            joints = stage(points, f, joints)
+        return joints
 
 
 MODELS = {"ours": VotingPointNet, "baseline": ReferencePointNet}
 
 
-def build(kind: str) -> nn.Module:
-    """A fresh network by kind ("ours" or "baseline")."""
+def build(kind: str, **options) -> nn.Module:
+    """A fresh network by kind ("ours" or "baseline"); ``options`` go to its constructor."""
     if kind not in MODELS:
         raise ValueError(f"unknown model kind {kind!r}; choose from {', '.join(MODELS)}")
-    return MODELS[kind]()
+    return MODELS[kind](**options)
 
 
 def count_parameters(model: nn.Module) -> int:

@@ -7,9 +7,9 @@ resampled to 30 fps (cached in .cache/retarget_clips.npz). A training sample is 
 clip's local rotations, turned by a random yaw, put on a source body A and a target body B: each a
 T-pose of the body library (training presets of sim.skeleton_data.split_bodies) with random
 per-bone length factors (0.85-1.15, left/right alike). Source joints = FK on A with the root
-scaled by A's leg ratio (plus, in half the batches, per-joint noise up to 2 cm, as from a depth
-skeleton); the exact answer on B = the same rotations on B's T-pose with the root scaled by B's
-leg ratio (CONVENTIONS.md).
+scaled by A's leg ratio (plus, in half the batches, noise shaped like the depth skeleton stage's
+error: measured per-joint size and frame-to-frame correlation, ``depth_like_noise``); the exact
+answer on B = the same rotations on B's T-pose with the root scaled by B's leg ratio (CONVENTIONS.md).
 
 Losses (see docs/learned_retargeting.md): supervised joints / rotations / root against the exact
 answer; joint cycle consistency A->B->A; rotation cycle (lambda_rot = 0.01, rotations of A->B and
@@ -177,12 +177,35 @@ def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body
 
 
 # ------------------------------------------------------------------------------------- training
+#: Error of the filtered depth skeleton stage per joint (std per axis, mm) and its frame-to-frame
+#: correlation at 30 fps, measured on training clips (cc_002_05, mb_02_01 on heavy_male and
+#: petite_female, virtual OAK-D): `python -m models.train.measure_skeleton_noise`.
+DEPTH_NOISE_MM = (15, 20, 16, 15, 16, 15, 17, 19, 25, 21, 27, 27, 22, 18, 20, 23, 24, 26, 51, 46, 50, 46)
+DEPTH_NOISE_CORR = 0.8
+
+
+def depth_like_noise(shape: tuple[int, int, int, int], scale: torch.Tensor) -> torch.Tensor:
+    """B x T x 22 x 3 noise like the depth skeleton's error: per-joint size DEPTH_NOISE_MM times
+    ``scale`` (B,), correlated in time (AR(1), DEPTH_NOISE_CORR per frame), so that the network
+    learns to smooth what the regressor really gets wrong rather than white noise."""
+    b, t, j, _ = shape
+    sigma = torch.tensor(DEPTH_NOISE_MM, dtype=torch.float32)[None, :, None] * 1e-3 * scale[:, None, None]
+    rho = DEPTH_NOISE_CORR
+    steps = torch.randn(shape)
+    out = torch.empty(shape)
+    out[:, 0] = steps[:, 0] * sigma
+    for k in range(1, t):
+        out[:, k] = rho * out[:, k - 1] + (1 - rho * rho) ** 0.5 * steps[:, k] * sigma
+    return out
+
+
 def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
+    """``noise``: size of the depth-like source noise (0 = exact source joints)."""
     rot, root, clip_rest, body_a, body_b = batch
     _, src = on_body(rot, root, clip_rest, body_a)
     gt_root, gt = on_body(rot, root, clip_rest, body_b)
     if noise > 0:
-        src = src + noise * torch.rand(src.shape[0], 1, 1, 1) * torch.randn_like(src)
+        src = src + depth_like_noise(tuple(src.shape), noise * torch.rand(src.shape[0]))
     scale_b = leg_length(body_b)[:, None]  # B x 1 x 1 x 1: lengths in target leg lengths
     pred_rot, pred_root, pred = net.retarget(src, body_a, body_b)
     out = {
@@ -204,7 +227,7 @@ def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
 
 
 def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, batch: int, lr: float,
-          log) -> dict:
+          log, noise_scale: float = 1.2) -> dict:
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-5)
     start = time.monotonic()
     step, history = 0, []
@@ -215,7 +238,7 @@ def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, ba
             g["lr"] = lr * 0.5 * (1 + np.cos(np.pi * min(frac, 1.0)))
         long = step % 4 == 3  # a quarter of the windows are 4 s long, against drift in long runs
         b = sampler.batch(batch // 4 if long else batch, 120 if long else 30)
-        noise = 0.02 if sampler.rng.random() < 0.5 else 0.0
+        noise = noise_scale if sampler.rng.random() < 0.5 else 0.0
         out = losses(net, b, noise)
         opt.zero_grad()
         out["total"].backward()
@@ -265,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--hidden", type=int, default=128)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise", type=float, default=1.2,
+                    help="depth-like source noise in half the batches: up to this x the measured skeleton error")
     ap.add_argument("--bodies", choices=("library", "generic"), default="library",
                     help="training bodies: the body library's presets or generic T-poses")
     ap.add_argument("--val-bodies", choices=("library", "generic"), default=None,
@@ -290,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
 
     net = RetargetNet(hidden=args.hidden)
     sampler = Sampler(data, train_ids, train_rests, args.seed)
-    run = train(net, sampler, minutes, steps, batch=BATCH, lr=2e-3, log=log)
+    run = train(net, sampler, minutes, steps, batch=BATCH, lr=2e-3, log=log, noise_scale=args.noise)
     path = out / "retarget.onnx"
     export_onnx(net, str(path))
     log(f"exported {path} after {run['steps']} steps")
@@ -311,7 +336,8 @@ def main(argv: list[str] | None = None) -> int:
         "data": {"clips": "../shared/data/bvh (CMU), 30 fps", "train_clips": len(train_ids),
                  "train_frames": frames, "val_subjects": [7, 8, 12, 16], "val_clips": len(val_ids),
                  "train_bodies": train_names, "val_bodies": val_names,
-                 "augmentation": "random yaw; per-bone length x0.85-1.15; source joint noise up to 2 cm in half the batches"},
+                 "augmentation": "random yaw; per-bone length x0.85-1.15; source noise like the depth skeleton's (per-joint size DEPTH_NOISE_MM x U(0, --noise), AR(1) 0.8 per frame) in half the batches",
+                                  "noise": args.noise},
         "losses": {"supervised": "L1 joints + 0.5 rotation matrices + root (exact targets)",
                    "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": "10 x (L1 velocity + L1 acceleration) against the truth",
                    "adversarial": "not used"},
