@@ -206,6 +206,21 @@ def _load_cached(spec: str) -> Body:
                          "a body .npz file, or anny:gender=..,age=..,muscle=..,weight=..,height=..,proportions=..")
 
 
+@functools.lru_cache(maxsize=4)
+def mean_rest_template(names: tuple[str, ...] | None = None) -> np.ndarray | None:
+    """(22, 3) mean T-pose of library bodies (``names``, default all presets), each scaled to a
+    unit pelvis height: the bone directions of real bodies, for estimating a performer's T-pose
+    from bone lengths (live.retarget.analytic.estimate_rest_joints). The straight-leg
+    default_rest_joints made performers 6-10 % tall there. None when there is no library."""
+    from live.skeleton import pelvis_height
+
+    names = tuple(list_presets()) if names is None else names
+    if not names:
+        return None
+    rests = [np.asarray(load_body(n).rest_joints, np.float64) for n in names]
+    return np.mean([r / pelvis_height(r) for r in rests], axis=0)
+
+
 def load_body(spec: str | Path) -> Body:
     """A body from a preset name, a .npz path, or an anny: phenotype (cached per spec; the arrays
     are read-only and shared: copy them to edit)."""

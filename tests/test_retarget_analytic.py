@@ -319,3 +319,23 @@ def test_real_clip_round_trip():
     truth, _ = forward_kinematics(motion.rotations[:120], motion.root[:120] * leg_ratio(motion.rest_joints, dst), dst)
     _, _, plain = retarget_motion(motion.rest_joints, dst, joints=joints, fps=motion.fps, foot_lock=False, floor=False)
     assert mpjpe(plain, truth) < 0.010
+
+
+def test_performer_rest_estimate_with_library_template():
+    """A library body's T-pose estimated from its posed joints with the other bodies' mean
+    T-pose as bone-direction template keeps its pelvis height within 3 % (the straight-leg
+    default template makes it several per cent taller)."""
+    from live.body import list_presets, load_body, mean_rest_template
+    from live.skeleton import pelvis_height
+
+    names = list_presets()
+    if len(names) < 3:
+        pytest.skip("no body library")
+    body = load_body(names[0])
+    template = mean_rest_template(tuple(names[1:]))
+    rng = np.random.default_rng(5)
+    rot, root = synth_motion(rng, np.asarray(body.rest_joints, np.float64), t=20)
+    joints, _ = forward_kinematics(rot, root, np.asarray(body.rest_joints, np.float64))
+    true = pelvis_height(body.rest_joints)
+    assert abs(pelvis_height(estimate_rest_joints(joints, template)) / true - 1) < 0.03
+    assert pelvis_height(estimate_rest_joints(joints)) / true > 1.03

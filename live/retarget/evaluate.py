@@ -139,10 +139,14 @@ def source_skeletons(motion, source_body, from_: str, **depth_options) -> tuple[
     if from_ == "skeleton":
         _, joints = _on_body(motion, source_body.rest_joints)
         return joints, np.asarray(source_body.rest_joints, np.float64), np.ones(len(joints), bool)
+    from live.body import list_presets, mean_rest_template
     from live.retarget.analytic import estimate_rest_joints
+    from sim.skeleton_data import split_bodies
 
     joints, found = depth_skeletons(motion, source_body, **depth_options)
-    return joints, estimate_rest_joints(joints[found]), found
+    # Bone directions from the training bodies only: the held-out ones are what is evaluated.
+    template = mean_rest_template(tuple(split_bodies(list_presets(), "train")))
+    return joints, estimate_rest_joints(joints[found], template), found
 
 
 def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, retarget: str, *, fps: float = 30.0,
