@@ -210,8 +210,8 @@ def _load_cached(spec: str) -> Body:
 def mean_rest_template(names: tuple[str, ...] | None = None) -> np.ndarray | None:
     """(22, 3) mean T-pose of library bodies (``names``, default all presets), each scaled to a
     unit pelvis height: the bone directions of real bodies, for estimating a performer's T-pose
-    from bone lengths (live.retarget.analytic.estimate_rest_joints). The straight-leg
-    default_rest_joints made performers 6-10 % tall there. None when there is no library."""
+    from bone lengths (the default of live.retarget.analytic.estimate_rest_joints). None when
+    there is no library."""
     from live.skeleton import pelvis_height
 
     names = tuple(list_presets()) if names is None else names

@@ -54,10 +54,6 @@ class RetargetStage:
         self.use_truth = use_truth
         self.model_path = model_path
         self._seen: list[np.ndarray] = []
-        from live.body import mean_rest_template
-
-        # The performer's T-pose is estimated with real bodies' bone directions (all presets).
-        self._template = mean_rest_template()
         self._retargeter = None
         self._last_t_ns: int | None = None
 
@@ -101,7 +97,7 @@ class RetargetStage:
             return False
         if len(self._seen) < self.warmup:
             self._seen.append(np.asarray(joints, np.float64))
-            rest = estimate_rest_joints(np.stack(self._seen), self._template)
+            rest = estimate_rest_joints(np.stack(self._seen))
             if self._retargeter is None:
                 self._retargeter = self._make(rest)
             else:

@@ -301,7 +301,7 @@ def test_estimate_rest_joints_from_posed_motion():
     rest = default_rest_joints(1.62)
     rot, root = synth_motion(rng, rest, t=30)
     joints, _ = forward_kinematics(rot, root, rest)
-    est = estimate_rest_joints(joints)
+    est = estimate_rest_joints(joints, default_rest_joints())  # the template it was built on
     np.testing.assert_allclose(est, rest, atol=1e-5)
 
 
@@ -338,4 +338,4 @@ def test_performer_rest_estimate_with_library_template():
     joints, _ = forward_kinematics(rot, root, np.asarray(body.rest_joints, np.float64))
     true = pelvis_height(body.rest_joints)
     assert abs(pelvis_height(estimate_rest_joints(joints, template)) / true - 1) < 0.03
-    assert pelvis_height(estimate_rest_joints(joints)) / true > 1.03
+    assert pelvis_height(estimate_rest_joints(joints, default_rest_joints())) / true > 1.03

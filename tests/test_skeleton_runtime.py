@@ -115,7 +115,7 @@ def test_close_up_upper_body_with_low_leg_confidence():
     assert conf[:, LEGS].mean() < 0.2
     assert conf[:, [12, 15, 16, 17]].mean() > 0.5
     err = mpjpe(joints[4:, UPPER], truth[4:, UPPER])
-    # Sanity bound (the card's held-out close-up figure is ~96 mm for the upper body).
+    # Sanity bound (the card's held-out close-up figure is 46 mm for the upper body).
     assert err < 0.16, f"upper-body MPJPE {err * 1000:.0f} mm"
 
 

@@ -65,8 +65,7 @@ def test_refinement_stage_votes_from_each_joints_nearest_points():
     torch.nn.init.zeros_(last.bias)
     pts = torch.rand(2, 64, 3)
     with torch.no_grad():
-        refined = net(pts).numpy()
-    coarse = net.last_coarse[0].detach().numpy()
+        coarse, refined = (x.numpy() for x in net.stages(pts))
     p = pts.numpy()
     for b in range(2):
         for j in range(22):

@@ -31,11 +31,10 @@ def error_statistics(errors: list[np.ndarray]) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
-    from live.body import load_body
+    from live.body import list_presets, load_body
     from live.retarget.evaluate import _on_body, depth_skeletons, prepare_motion
     from live.skeleton import JOINT_NAMES
     from sim.skeleton_data import BVH_DIR, VAL_SUBJECTS, list_clips, split_bodies
-    from live.body import list_presets
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=240)

@@ -149,9 +149,13 @@ class VotingPointNet(nn.Module):
         self.head = nn.Linear(width, num_joints * 4)
         self.refine = nn.ModuleList(_LocalRefine(num_joints, width, refine_width, refine_k)
                                     for _ in range(refine_stages if refine_k else 0))
-        self.last_coarse: list[torch.Tensor] = []  # the earlier stages' joints (training loss)
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
+        return self.stages(points)[-1]
+
+    def stages(self, points: torch.Tensor) -> list[torch.Tensor]:
+        """The joints of every stage of the cascade, first estimate first (training supervises
+        them all; the export keeps the last)."""
         b, n, _ = points.shape
         f = points
         for layer in self.local:
@@ -162,12 +166,10 @@ class VotingPointNet(nn.Module):
         out = self.head(f).reshape(b, n, self.num_joints, 4)
         weights = torch.softmax(out[..., 0], dim=1)  # over points: B x N x J
         votes = points.unsqueeze(2) + 0.5 * out[..., 1:]  # B x N x J x 3 (offsets ~metres)
-        joints = (weights.unsqueeze(-1) * votes).sum(dim=1)
-        self.last_coarse = []
+        out = [(weights.unsqueeze(-1) * votes).sum(dim=1)]
         for stage in self.refine:
-            self.last_coarse.append(joints)
-            joints = stage(points, f, joints)
-        return joints
+            out.append(stage(points, f, out[-1]))
+        return out
 
 
 MODELS = {"ours": VotingPointNet, "baseline": ReferencePointNet}

@@ -337,8 +337,8 @@ def main(argv: list[str] | None = None) -> int:
         "data": {"clips": "../shared/data/bvh (CMU), 30 fps", "train_clips": len(train_ids),
                  "train_frames": frames, "val_subjects": [7, 8, 12, 16], "val_clips": len(val_ids),
                  "train_bodies": train_names, "val_bodies": val_names,
-                 "augmentation": "random yaw; per-bone length x0.85-1.15; source noise like the depth skeleton's (per-joint size DEPTH_NOISE_MM x U(0, --noise), AR(1) 0.8 per frame) in half the batches",
-                                  "noise": args.noise},
+                 "augmentation": "random yaw; per-bone length x0.85-1.15; source noise like the depth skeleton's "
+                                 f"(per-joint size DEPTH_NOISE_MM x U(0, {args.noise}), AR(1) 0.8 per frame) in half the batches"},
         "losses": {"supervised": "L1 joints + 0.5 rotation matrices + root (exact targets)",
                    "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": "10 x (L1 velocity + L1 acceleration) against the truth",
                    "adversarial": "not used"},

@@ -100,9 +100,11 @@ def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True) -
         for pts, jts in _batches(train, recipe, rng):
             if log["steps"] + n >= total:
                 break
-            loss = loss_fn(model(pts), jts)
-            for coarse in getattr(model, "last_coarse", ()):  # deep supervision of a cascade
-                loss = loss + 0.5 * loss_fn(coarse, jts)
+            if hasattr(model, "stages"):  # a cascade: its earlier estimates are supervised too
+                *coarse, pred = model.stages(pts)
+                loss = loss_fn(pred, jts) + sum(0.5 * loss_fn(c, jts) for c in coarse)
+            else:
+                loss = loss_fn(model(pts), jts)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
