@@ -105,21 +105,29 @@ def estimate_floor(points_cam: np.ndarray, distance_m: float = 0.02, iterations:
     return m
 
 
-def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, eye_xz: np.ndarray, band_m: float = 0.12) -> float:
+def _quantiles(x: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
+    """Nearest-rank quantiles of a 1-D array: one partition, ~10x cheaper than np.percentile on
+    the few thousand points of a cluster (the person finder evaluates several per frame)."""
+    ks = np.round(np.asarray(qs) * (len(x) - 1)).astype(np.intp)
+    return np.partition(x, ks)[ks]
+
+
+def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, eye_xz: np.ndarray,
+                band_m: float = 0.12) -> float:
     """Person-likeness in (0.1, 1]: 1.2 minus the width of the cluster's top band over its whole
-    width, both measured across the line of sight. A box, a table or a wall edge is as wide at
-    the top as overall (~0.1); a person is topped by a head, or by hands (~0.2-0.8)."""
-    c = np.median(pts[:, [0, 2]], axis=0)
+    width, both measured across the line of sight from ``eye_xz`` to the cluster's centre ``c``.
+    A box, a table or a wall edge is as wide at the top as overall (~0.1); a person is topped
+    by a head, or by hands (~0.2-0.8)."""
     d = c - np.asarray(eye_xz, np.float32)
     n = float(np.hypot(d[0], d[1]))
     if n < 1e-6:
         return 1.0
     lateral = (pts[:, 0] - c[0]) * (d[1] / n) - (pts[:, 2] - c[1]) * (d[0] / n)
-    lo, hi = np.percentile(lateral, [2, 98])
+    lo, hi = _quantiles(lateral, (0.02, 0.98))
     top = lateral[ys > y_top - band_m]
     if len(top) < 5 or hi - lo < 1e-3:
         return 1.0
-    t_lo, t_hi = np.percentile(top, [5, 95])
+    t_lo, t_hi = _quantiles(top, (0.05, 0.95))
     return float(np.clip(1.2 - (t_hi - t_lo) / (hi - lo), 0.1, 1.0))
 
 
@@ -349,20 +357,21 @@ class PersonFinder:
             if footprint > cfg.max_footprint_m + 2 * cfg.cell_m:
                 continue  # a wall or a large piece of furniture
             sel = point_label == lab
-            ys = pts[sel, 1]
-            y_lo, y_hi = np.percentile(ys, [1, 99])
+            cluster = pts[sel]
+            ys = cluster[:, 1]
+            y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
             height = float(y_hi - y_lo)
             if height < cfg.min_height_m or y_hi > cfg.max_height_m:
                 continue  # too flat to be a person, or a wall / door frame seen edge-on
             # Prefer many points, tall clusters (furniture is rarely taller than 1.2 m), shapes
             # narrower at the top than overall (a head, not the edge of a box or a table top),
             # and the previous person's position.
-            narrow = _narrow_top(pts[sel], ys, y_hi, eye_xz)
+            c = np.array([_quantiles(cluster[:, 0], (0.5,))[0], _quantiles(cluster[:, 2], (0.5,))[0]])
+            narrow = _narrow_top(cluster, ys, y_hi, c, eye_xz)
             if narrow < cfg.min_narrow_top:
                 continue  # flat-topped: furniture (this also rejects a person lying down)
             score = counts[lab] * min(height, 1.8) ** 2 * narrow
             if self._last_center is not None:
-                c = np.median(pts[sel][:, [0, 2]], axis=0)
                 score /= 1.0 + np.linalg.norm(c - self._last_center)
             if score > best_score:
                 best, best_score = (sel, labels, int(lab), origin), score
