@@ -91,7 +91,7 @@ class Job:
     split: str = "train"
 
 
-def plan_jobs(split: str, n_samples: int, seed: int) -> list[Job]:
+def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped)."""
     from live.body import list_presets
 
@@ -100,7 +100,7 @@ def plan_jobs(split: str, n_samples: int, seed: int) -> list[Job]:
     clips = split_clips(list_clips(), split)
     bodies = split_bodies(list_presets(), split)
     rng = np.random.default_rng([seed, SPLITS.index(split)])
-    n_jobs = -(-int(n_samples * 1.05 + 1) // FRAMES_PER_JOB)
+    n_jobs = -(-int(n_samples * 1.05 + 1) // frames_per_job)
     jobs = []
     for k in range(n_jobs):
         clip = clips[int(rng.integers(len(clips)))]
@@ -181,12 +181,30 @@ def clear_view(room, eye: np.ndarray, margin_m: float = 0.4):
     return replace(room, width=max(room.width, reach), depth=max(room.depth, reach), boxes=tuple(keep))
 
 
+def random_view(job: Job, rng: np.random.Generator):
+    """(VirtualDepthCamera, Room) of a job: a random placement around the performer at the
+    origin (1.5-4 m, 0.6-1.9 m high, any yaw; close-ups 0.8-1.4 m aimed at the chest), random
+    sensor noise, a random room cleared between the camera and the performer."""
+    from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
+    from sim.room import random_room
+
+    if job.closeup:
+        distance, height = rng.uniform(0.8, 1.4), rng.uniform(1.2, 1.7)
+        target = (0.0, float(rng.uniform(1.1, 1.4)), 0.0)
+    else:
+        distance, height = rng.uniform(1.5, 4.0), rng.uniform(0.6, 1.9)
+        target = (0.0, 1.0, 0.0)
+    c2w = look_at_camera(distance, height, rng.uniform(-np.pi, np.pi), target=target)
+    noise = NoiseModel(disparity_sigma_px=None if rng.random() < 0.7 else float(rng.uniform(0.05, 0.3)),
+                       dropout=float(rng.uniform(0.0, 0.03)))
+    camera = VirtualDepthCamera(job.camera, c2w, noise=noise, seed=job.seed)
+    return camera, clear_view(random_room(rng, keep_out_m=1.0), c2w[:3, 3])
+
+
 def run_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
     from live.frames import DepthFrame
     from models.skeleton.preprocess import PersonFinder, PreprocessConfig
-    from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
-    from sim.room import random_room
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)
@@ -200,18 +218,9 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     centre = joints[frames, 0].mean(axis=0)
     shift = np.array([centre[0], 0.0, centre[2]])
     root, joints = root - shift, joints - shift
-    if job.closeup:
-        distance, height = rng.uniform(0.8, 1.4), rng.uniform(1.2, 1.7)
-        target = (0.0, float(rng.uniform(1.1, 1.4)), 0.0)
-    else:
-        distance, height = rng.uniform(1.5, 4.0), rng.uniform(0.6, 1.9)
-        target = (0.0, 1.0, 0.0)
-    c2w = look_at_camera(distance, height, rng.uniform(-np.pi, np.pi), target=target)
-    noise = NoiseModel(disparity_sigma_px=None if rng.random() < 0.7 else float(rng.uniform(0.05, 0.3)),
-                       dropout=float(rng.uniform(0.0, 0.03)))
-    camera = VirtualDepthCamera(job.camera, c2w, noise=noise, seed=job.seed)
+    camera, room = random_view(job, rng)
+    c2w = camera.camera_to_world
     scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
-    room = clear_view(random_room(rng, keep_out_m=1.0), c2w[:3, 3])
     # Training samples: one pass at the full stride; validation samples: the runtime's
     # coarse-to-fine pass (both draw uniformly from the same person pixels; docs/skeleton.md).
     coarse = PreprocessConfig.coarse_stride if job.split != "train" else None
@@ -326,6 +335,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
-           "plan_jobs", "run_job",
+           "plan_jobs", "run_job", "random_view", "clear_view",
            "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

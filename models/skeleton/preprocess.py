@@ -15,6 +15,7 @@ Steps (all numpy / OpenCV, a few ms for a 640x400 frame):
 from __future__ import annotations
 
 import warnings
+from collections import deque
 from dataclasses import dataclass, field
 
 import cv2
@@ -42,6 +43,18 @@ class PreprocessConfig:
     min_narrow_top: float = 0.4
     max_footprint_m: float = 1.8
     background_margin_m: float = 0.10
+    # Motion cue: a cluster whose depth has not changed since a frame motion_lag_s ago (or the
+    # oldest frame kept, early on) scores static_weight times a moving one: furniture never
+    # moves, a performer does. A point moved when its depth changed by more than
+    # motion_change_m + 1 cm x z^2 (stereo noise grows with the square of the range); a cluster
+    # moves in proportion to its share of moved points above motion_noise_share (what noise and
+    # flickering edges give a still surface), fully at motion_full_share. A still performer
+    # next to still furniture gets no cue either way.
+    motion_lag_s: float = 0.3
+    motion_change_m: float = 0.05
+    motion_noise_share: float = 0.15
+    motion_full_share: float = 0.5
+    static_weight: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -171,6 +184,7 @@ class PersonFinder:
     counters: FinderCounters = field(default_factory=FinderCounters)
     _floor_c2w: np.ndarray | None = None
     _last_center: np.ndarray | None = None
+    _past_depth: deque = field(default_factory=lambda: deque(maxlen=64), repr=False)
     _rays: np.ndarray | None = field(default=None, repr=False)
     _rays_key: tuple | None = field(default=None, repr=False)
 
@@ -250,7 +264,9 @@ class PersonFinder:
         world, pixels, c2w = got
         above = np.flatnonzero(world[:, 1] > cfg.floor_margin_m)
         scale = (cfg.coarse_stride / cfg.pixel_stride) ** 2 if coarse else 1.0
-        found = self._cluster(world[above], c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10))
+        moving = self._moving_pixels(frame, cfg.coarse_stride if coarse else cfg.pixel_stride)
+        found = self._cluster(world[above], c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10),
+                              moving=None if moving is None else moving[pixels[above]])
         if found is None:
             self.counters.nobody += 1
             return None
@@ -269,6 +285,28 @@ class PersonFinder:
         self.counters.found += 1
         return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
                            count=int(len(person) * scale), height_m=float(person[:, 1].max()))
+
+    def _moving_pixels(self, frame: DepthFrame, s: int) -> np.ndarray | None:
+        """Flat bool mask of the strided depth image: depth changed since the newest stored
+        frame at least motion_lag_s older (None without a depth image or such a frame)."""
+        if frame.depth_mm is None:
+            return None
+        cfg = self.config
+        depth = frame.depth_mm[::s, ::s]
+        past = self._past_depth
+        if past and (past[-1][1].shape != depth.shape or past[-1][0] >= frame.t_ns):
+            past.clear()  # another camera, or time went backwards (a new replay)
+        lag = int(cfg.motion_lag_s * 1e9)
+        while len(past) > 1 and past[1][0] <= frame.t_ns - lag:
+            past.popleft()  # keep one frame at least motion_lag_s old, and the newer ones
+        ref = past[0][1] if past else None
+        past.append((frame.t_ns, depth.copy()))
+        if ref is None:
+            return None
+        z = depth.astype(np.float32) * np.float32(0.001)
+        z_ref = ref.astype(np.float32) * np.float32(0.001)
+        changed = (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
+        return changed.reshape(-1)
 
     def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, person_idx: np.ndarray, labels: np.ndarray,
                      lab: int, origin: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -316,10 +354,11 @@ class PersonFinder:
             pts = np.zeros((1, 3), np.float32)
         return pts[rng.choice(len(pts), n, replace=True)]
 
-    def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int
+    def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int, moving: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
         """The person among world points (M, 3) above the floor: (bool mask (M,) of its points,
-        the cell label grid, its label, the grid origin (x, z)), or None."""
+        the cell label grid, its label, the grid origin (x, z)), or None. moving: (M,) bool,
+        points whose depth changed lately (``_moving_pixels``), or None when not known."""
         cfg = self.config
         if len(pts) < min_points:
             return None
@@ -371,6 +410,10 @@ class PersonFinder:
             if narrow < cfg.min_narrow_top:
                 continue  # flat-topped: furniture (this also rejects a person lying down)
             score = counts[lab] * min(height, 1.8) ** 2 * narrow
+            if moving is not None:
+                share = (float(moving[sel].mean()) - cfg.motion_noise_share) / (
+                    cfg.motion_full_share - cfg.motion_noise_share)
+                score *= cfg.static_weight + (1.0 - cfg.static_weight) * float(np.clip(share, 0.0, 1.0))
             if self._last_center is not None:
                 score /= 1.0 + np.linalg.norm(c - self._last_center)
             if score > best_score:

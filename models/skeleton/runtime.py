@@ -2,7 +2,8 @@
 
 numpy + onnxruntime only (the networks are trained by models/train/train_skeleton.py). Per frame:
 ``PersonFinder`` (models.skeleton.preprocess) -> the regressor on the person-frame sample ->
-``PersonCloud.to_world`` -> flip guard -> bone-length consistency -> One Euro filter, and a
+``PersonCloud.to_world`` -> flip guard -> temporal model (models.skeleton.temporal: the last half
+second of estimates in, the current joints out) -> bone-length consistency -> One Euro filter, and a
 per-joint confidence: the depth support near the joint (joint_confidence), zero for joints
 outside the camera image. Nobody in view -> no skeleton (``process`` returns False), and the
 temporal state is reset once the person has been gone for ``reset_after_s``.
@@ -10,6 +11,7 @@ temporal state is reset once the person has been gone for ``reset_after_s``.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -19,6 +21,9 @@ from live.errors import ModelError
 from live.frames import DepthFrame, FrameResult, SkeletonFrame
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder, PreprocessConfig
+from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL, TemporalRefiner
+
+log = logging.getLogger(__name__)
 
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
 DEFAULT_MODEL = WEIGHTS_DIR / "skeleton.onnx"
@@ -75,19 +80,22 @@ def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, heig
 class SkeletonStage:
     """Pipeline stage ``skeleton``: sets ``result.skeleton`` from ``result.depth``.
 
+    temporal: the temporal model (True: the shipped one when it was trained behind this
+    regressor, else skipped with a warning; a path: that model, which must match; False: off).
     min_cutoff / beta: One Euro filter (Hz, and Hz per m/s); filter=False gives raw joints.
-    The defaults halve the acceleration error of raw joints for +2 mm MPJPE on held-out walks
-    (docs/skeleton.md). keep_bones: bone lengths fixed per performer once learned (off by
+    keep_bones: bone lengths fixed per performer once learned (off by
     default: with the current model it costs ~10 mm MPJPE); flip_guard: undo whole-body
     left/right label flips. reset_after_s: forget the performer after this long without one."""
 
     name = "skeleton"
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1, *,
-                 finder: PersonFinder | None = None, min_cutoff: float = 1.5, beta: float = 3.0,
+                 finder: PersonFinder | None = None, temporal: bool | str | Path = True,
+                 min_cutoff: float = 1.5, beta: float = 3.0,
                  filter: bool = True, keep_bones: bool = False, flip_guard: bool = True,
                  reset_after_s: float = 0.5):
         self.regressor = SkeletonRegressor(model_path, threads)
+        self.temporal = _open_temporal(temporal, self.regressor.path, threads)
         self.finder = finder or PersonFinder(PreprocessConfig(num_points=self.regressor.num_points))
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
         self.use_filter, self.keep_bones, self.use_flip_guard = filter, keep_bones, flip_guard
@@ -102,6 +110,8 @@ class SkeletonStage:
         self.euro = OneEuroFilter(min_cutoff=self.min_cutoff, beta=self.beta)
         self.bones = BoneLengthKeeper()
         self.flips = FlipGuard()
+        if self.temporal is not None:
+            self.temporal.reset()
 
     @property
     def counters(self) -> dict[str, int]:
@@ -126,14 +136,17 @@ class SkeletonStage:
             self._counters.nobody += 1
             return None
         local = self.regressor(cloud.points).astype(np.float64)
-        conf = joint_confidence(local, cloud.points)
+        support = joint_confidence(local, cloud.points)
         rot, trans = cloud.to_world[:3, :3], cloud.to_world[:3, 3]
         joints = local @ rot.T + trans
+        if self.use_flip_guard:
+            joints = self.flips(joints)
+        if self.temporal is not None:
+            joints = self.temporal(frame.t_ns * 1e-9, joints, support, cloud.to_world)
+        conf = support
         if frame.depth_mm is not None and frame.intrinsics is not None:
             h, w = frame.depth_mm.shape
             conf = conf * joints_in_view(joints, frame, w, h)
-        if self.use_flip_guard:
-            joints = self.flips(joints)
         if self.keep_bones:
             joints = self.bones(joints, conf)
         if self.use_filter:
@@ -151,6 +164,24 @@ class SkeletonStage:
             return False
         result.skeleton = skeleton
         return True
+
+
+def _open_temporal(temporal: bool | str | Path, regressor_path: Path, threads: int) -> TemporalRefiner | None:
+    """The stage's temporal model, or None (off, or the optional default is absent or was
+    trained behind another regressor: it would correct errors this regressor does not make)."""
+    if temporal is False or temporal is None:
+        return None
+    path = DEFAULT_TEMPORAL_MODEL if temporal is True else Path(temporal)
+    if temporal is True and not path.is_file():
+        return None
+    refiner = TemporalRefiner(path, threads)
+    if refiner.matches(regressor_path):
+        return refiner
+    msg = f"{path.name} was trained behind another skeleton model than {regressor_path.name}"
+    if temporal is not True:
+        raise ModelError(f"{msg} (retrain it: python -m models.train.train_skeleton_temporal --regressor ...)")
+    log.warning("%s: temporal refinement off", msg)
+    return None
 
 
 __all__ = ["SkeletonRegressor", "SkeletonStage", "StageCounters", "joints_in_view", "DEFAULT_MODEL",

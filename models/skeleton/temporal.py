@@ -1,0 +1,131 @@
+"""Temporal refinement of the per-frame skeleton: the last half second of estimates in, the
+current frame's joints out (numpy + onnxruntime; trained by models/train/train_skeleton_temporal.py).
+
+The per-frame regressor sees one depth frame, so an occluded foot or a self-occluded wrist is a
+guess that jumps from frame to frame. The temporal model reads a window of ``window`` past
+estimates sampled every 1/fps s (fps of its training data, 30), each expressed in the *current*
+person frame, with their depth-support confidences and a flag per sample telling whether a real
+observation was there, and regresses a correction of the current estimate. It is causal (no
+look-ahead, no added latency) and stateless apart from the window, so replay is deterministic.
+
+The window is sampled in time, not in frames: at 60 fps or with dropped frames the history is
+interpolated to the training rate; before the first observation it repeats the first one (its
+flag says so).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from live.errors import ModelError
+from live.skeleton import NUM_JOINTS
+
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
+DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
+
+
+@dataclass(frozen=True)
+class TemporalWindow:
+    """One input of the temporal model. joints (W, 22, 3) person frame of the newest sample,
+    newest first; confidence (W, 22); observed (W,) 1 where a real estimate lies within half a
+    sample period of the sample time, else 0 (interpolated or repeated)."""
+
+    joints: np.ndarray
+    confidence: np.ndarray
+    observed: np.ndarray
+
+    def features(self) -> np.ndarray:
+        """The flat float32 input vector of the network: joints, then confidences, then flags."""
+        return np.concatenate([self.joints.reshape(-1), self.confidence.reshape(-1),
+                               self.observed.reshape(-1)]).astype(np.float32)
+
+
+def feature_size(window: int) -> int:
+    return window * (NUM_JOINTS * 4 + 1)
+
+
+def to_person_frame(joints_world: np.ndarray, to_world: np.ndarray) -> np.ndarray:
+    """World joints (..., 22, 3) -> coordinates of the person frame ``to_world`` (4, 4)."""
+    return (np.asarray(joints_world, np.float64) - to_world[:3, 3]) @ to_world[:3, :3]
+
+
+def sample_history(times_s: np.ndarray, joints_world: np.ndarray, confidence: np.ndarray, t_now_s: float,
+                   to_world: np.ndarray, window: int, fps: float) -> TemporalWindow:
+    """The window at sample times t_now - k / fps (k = 0..window-1) from past observations
+    (times_s (H,) increasing, the last one at t_now; joints_world (H, 22, 3); confidence (H, 22)),
+    linearly interpolated between observations, clamped to the first one before it."""
+    t = np.asarray(times_s, np.float64)
+    q = t_now_s - np.arange(window) / fps
+    hi = np.clip(np.searchsorted(t, q, side="left"), 0, len(t) - 1)
+    lo = np.maximum(hi - 1, 0)
+    span = t[hi] - t[lo]
+    w = np.where(span > 0, (q - t[lo]) / np.where(span > 0, span, 1.0), 1.0)
+    w = np.clip(w, 0.0, 1.0)
+    w = np.where(q <= t[0], 0.0, w)[:, None, None]
+    lo = np.where(q <= t[0], 0, lo)
+    j = (1.0 - w) * joints_world[lo] + w * joints_world[hi]
+    c = (1.0 - w[..., 0]) * confidence[lo] + w[..., 0] * confidence[hi]
+    nearest = np.minimum(np.abs(t[lo] - q), np.abs(t[hi] - q))
+    observed = (nearest < 0.5 / fps).astype(np.float32)
+    return TemporalWindow(joints=to_person_frame(j, to_world), confidence=c, observed=observed)
+
+
+class TemporalRefiner:
+    """The exported temporal model in an onnxruntime session, with its own history.
+
+    ``refiner(t_s, joints_world, confidence, to_world)`` -> refined world joints (22, 3) of the
+    current frame; ``reset()`` forgets the performer. ``window`` and ``fps`` come from the card."""
+
+    def __init__(self, model_path: str | Path | None = None, threads: int = 1):
+        from live.onnx import open_session
+
+        self.path = Path(model_path) if model_path is not None else DEFAULT_TEMPORAL_MODEL
+        self.session, self.card = open_session(self.path, threads=threads, what="temporal skeleton model",
+                                               retrain="python -m models.train.train_skeleton_temporal")
+        self.window = int(self.card.get("window", 16))
+        self.fps = float(self.card.get("fps", 30.0))
+        inputs = self.session.get_inputs()
+        if len(inputs) != 1 or inputs[0].shape[-1] != feature_size(self.window):
+            raise ModelError(f"{self.path.name}: expected one (B, {feature_size(self.window)}) input, "
+                             f"got {[i.shape for i in inputs]}")
+        self._input = inputs[0].name
+        self.reset()
+
+    def reset(self) -> None:
+        # Enough history for the window, plus slack for faster cameras and dropped frames.
+        self._times: deque[float] = deque(maxlen=8 * self.window)
+        self._joints: deque[np.ndarray] = deque(maxlen=8 * self.window)
+        self._conf: deque[np.ndarray] = deque(maxlen=8 * self.window)
+
+    def matches(self, regressor_path: Path) -> bool:
+        """Whether this model was trained on the outputs of that regressor file."""
+        want = self.card.get("regressor_sha256")
+        return want is None or want == file_sha256(regressor_path)
+
+    def __call__(self, t_s: float, joints_world: np.ndarray, confidence: np.ndarray,
+                 to_world: np.ndarray) -> np.ndarray:
+        if self._times and t_s <= self._times[-1]:
+            self.reset()  # time went backwards (a new replay): start over
+        self._times.append(float(t_s))
+        self._joints.append(np.asarray(joints_world, np.float64))
+        self._conf.append(np.asarray(confidence, np.float64))
+        cut = t_s - (self.window + 1) / self.fps  # drop what the window can no longer reach
+        while len(self._times) > 2 and self._times[1] < cut:
+            self._times.popleft(), self._joints.popleft(), self._conf.popleft()
+        win = sample_history(np.array(self._times), np.stack(self._joints), np.stack(self._conf), t_s,
+                             to_world, self.window, self.fps)
+        local = self.session.run(None, {self._input: win.features()[None]})[0][0].astype(np.float64)
+        return local @ to_world[:3, :3].T + to_world[:3, 3]
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+__all__ = ["TemporalRefiner", "TemporalWindow", "sample_history", "to_person_frame", "feature_size",
+           "file_sha256", "DEFAULT_TEMPORAL_MODEL"]

@@ -1,0 +1,357 @@
+"""Train the temporal skeleton model on the shipped regressor's outputs; export ONNX + card.
+
+    python -m models.train.train_skeleton_temporal [--quick] [--window 16]
+
+Data: consecutive-frame sequences from ``sim.skeleton_sequences`` (training clips and bodies;
+validation on unseen CMU subjects and unseen bodies, OAK-D at 1.5-4 m). The per-frame regressor
+(``models/weights/skeleton.onnx`` unless --regressor) is run on every stored person sample, so
+the temporal model learns that regressor's real errors; its sha256 goes into the card and the
+runtime uses the temporal model only behind the same regressor.
+
+Loss, per training example of three consecutive frames: L1 of each frame's joints, plus the
+acceleration error of the three (the jitter the retargeter and the avatar would show). Mirror
+augmentation (x -> -x in the person frame, left/right swapped) is exact for whole windows.
+``--quick`` writes to .cache/skeleton_temporal_quick unless --out is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+ROOT = Path(__file__).resolve().parents[2]
+WEIGHTS = ROOT / "models" / "weights"
+FLIP = np.array([-1.0, 1.0, 1.0])
+ON_PERFORMER_M = 0.6  # as sim.skeleton_data.run_job: a person this far off the pelvis is clutter
+
+
+class TemporalRefineNet(nn.Module):
+    """Window features (B, W*(22*4+1)) -> refined current joints (B, 22, 3).
+
+    The past samples enter as their offsets from the newest estimate (x10: centimetres are
+    numbers near 1), so a temporal filter is a linear function of the input; a linear path
+    learns that filter fast and an MLP beside it learns what is not linear (occlusions,
+    pose priors). Both start at zero: the untrained model is the per-frame estimate. No dropout:
+    independent dropout masks on consecutive frames would be jitter the acceleration loss
+    then fights."""
+
+    def __init__(self, window: int, width: int = 512, depth: int = 3, dropout: float = 0.0):
+        super().__init__()
+        from models.skeleton.temporal import feature_size
+
+        self.window = window
+        layers: list[nn.Module] = []
+        c = feature_size(window)
+        for _ in range(depth):
+            layers += [nn.Linear(c, width), nn.ReLU()] + ([nn.Dropout(dropout)] if dropout else [])
+            c = width
+        layers.append(nn.Linear(c, 66))
+        self.mlp = nn.Sequential(*layers)
+        self.linear = nn.Linear(feature_size(window), 66)
+        for head in (layers[-1], self.linear):
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        w = self.window
+        joints = x[:, :w * 66].reshape(-1, w, 66)
+        newest = joints[:, 0]
+        offsets = (joints[:, 1:] - newest[:, None]) * 10.0
+        z = torch.cat([newest, offsets.reshape(len(x), -1), x[:, w * 66:]], dim=1)
+        return (newest + self.linear(z) + self.mlp(z)).reshape(-1, 22, 3)
+
+
+def regress_sequences(data: dict, regressor_path: Path, threads: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame regressor outputs on every found frame: (joints world (S, F, 22, 3),
+    confidence (S, F, 22)); NaN / 0 where the finder found nobody."""
+    from models.skeleton.filters import joint_confidence
+    from models.skeleton.runtime import SkeletonRegressor
+
+    reg = SkeletonRegressor(regressor_path, threads=threads)
+    s, f = data["found"].shape
+    pts = data["points"][..., :reg.num_points, :].reshape(s * f, reg.num_points, 3)
+    found = data["found"].reshape(-1)
+    local = np.full((s * f, 22, 3), np.nan)
+    idx = np.flatnonzero(found)
+    for a in range(0, len(idx), 256):
+        b = idx[a:a + 256]
+        local[b] = reg(pts[b])
+    conf = np.zeros((s * f, 22))
+    for i in idx:
+        conf[i] = joint_confidence(local[i], pts[i])
+    tw = data["to_world"].reshape(s * f, 4, 4)
+    world = np.einsum("nij,nkj->nki", tw[:, :3, :3], local) + tw[:, None, :3, 3]
+    return world.reshape(s, f, 22, 3), conf.reshape(s, f, 22)
+
+
+def build_examples(data: dict, world: np.ndarray, conf: np.ndarray, window: int, fps: float) -> dict:
+    """Inputs and targets for every found frame: features (E, D) float32, raw (E, 22, 3) newest
+    per-frame estimate and target (E, 22, 3) truth, both in that frame's person frame;
+    seq / frame (E,) indices; to_world (E, 4, 4); on_performer (E,) whether the finder's
+    person is the performer (true pelvis within ON_PERFORMER_M of the person frame's origin;
+    otherwise it picked clutter, and there is nothing to learn from the frame)."""
+    from models.skeleton.temporal import sample_history, to_person_frame
+
+    feats, raw, target, seq, frame, tws = [], [], [], [], [], []
+    t_all = data["t_ns"] * 1e-9
+    for s in range(len(data["found"])):
+        found = np.flatnonzero(data["found"][s])
+        for n, k in enumerate(found):
+            hist = found[:n + 1]
+            tw = data["to_world"][s, k]
+            win = sample_history(t_all[s, hist], world[s, hist], conf[s, hist], t_all[s, k], tw, window, fps)
+            feats.append(win.features())
+            raw.append(win.joints[0])
+            target.append(to_person_frame(data["joints"][s, k], tw))
+            seq.append(s)
+            frame.append(k)
+            tws.append(tw)
+    target = np.asarray(target)
+    return {"features": np.asarray(feats, np.float32), "raw": np.asarray(raw), "target": target,
+            "seq": np.asarray(seq), "frame": np.asarray(frame), "to_world": np.asarray(tws),
+            "on_performer": np.hypot(target[:, 0, 0], target[:, 0, 2]) < ON_PERFORMER_M}
+
+
+def triples(ex: dict) -> np.ndarray:
+    """(M, 3) example indices of three consecutive found frames of one sequence, all three on
+    the performer."""
+    key = {(int(s), int(k)): i for i, (s, k, ok) in enumerate(zip(ex["seq"], ex["frame"], ex["on_performer"]))
+           if ok}
+    out = []
+    for (s, k), i in key.items():
+        a, b = key.get((s, k - 2)), key.get((s, k - 1))
+        if a is not None and b is not None:
+            out.append((a, b, i))
+    return np.asarray(out, np.int64).reshape(-1, 3)
+
+
+def mirror_features(x: np.ndarray, window: int) -> np.ndarray:
+    """Mirror a batch of window features: x -> -x of every joint, left/right swapped."""
+    from live.skeleton import LEFT_RIGHT_SWAP
+
+    b = len(x)
+    j = x[:, :window * 66].reshape(b, window, 22, 3)[:, :, LEFT_RIGHT_SWAP] * FLIP.astype(np.float32)
+    c = x[:, window * 66:window * 88].reshape(b, window, 22)[:, :, LEFT_RIGHT_SWAP]
+    return np.concatenate([j.reshape(b, -1), c.reshape(b, -1), x[:, window * 88:]], axis=1)
+
+
+def train(ex: dict, window: int, epochs: int, lr: float, acc_weight: float, seed: int, net: dict,
+          progress: bool) -> tuple[TemporalRefineNet, dict]:
+    from live.skeleton import LEFT_RIGHT_SWAP
+    from tqdm import tqdm
+
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    tri = triples(ex)
+    # Frame k-2 and k-1 outputs are compared with frame k's in frame k's person frame.
+    inv = np.linalg.inv(ex["to_world"])
+    rel = np.einsum("mij,mnjk->mnik", inv[tri[:, 2]], ex["to_world"][tri])  # (M, 3, 4, 4)
+    model = TemporalRefineNet(window, **net)
+    opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
+    batch = 256
+    steps = max(len(tri) // batch, 1) * epochs
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
+    flip = np.diag([-1.0, 1.0, 1.0, 1.0])
+    log = {"epoch_loss": []}
+    t0 = time.monotonic()
+    bar = tqdm(total=steps, desc="train temporal", unit="step", disable=not progress, mininterval=5.0)
+    model.train()
+    for _ in range(epochs):
+        order = rng.permutation(len(tri))
+        running, n = 0.0, 0
+        for a in range(0, len(order) - batch + 1, batch):
+            idx = tri[order[a:a + batch]]  # (B, 3)
+            x = ex["features"][idx.reshape(-1)]
+            y = ex["target"][idx.reshape(-1)]
+            r = rel[order[a:a + batch]]
+            m = rng.random(batch) < 0.5
+            if m.any():
+                mm = np.repeat(m, 3)
+                x[mm] = mirror_features(x[mm], window)
+                y[mm] = (y[mm] * FLIP)[:, LEFT_RIGHT_SWAP]
+                r[m] = flip @ r[m] @ flip
+            pred = model(torch.from_numpy(x)).reshape(batch, 3, 22, 3)
+            gt = torch.from_numpy(y).reshape(batch, 3, 22, 3)
+            rot = torch.from_numpy(r[:, :, :3, :3])
+            tr = torch.from_numpy(r[:, :, None, :3, 3])
+            # All three frames in frame k's coordinates (rigid: errors keep their size).
+            p_k = torch.einsum("bfij,bfnj->bfni", rot, pred.double()) + tr
+            g_k = torch.einsum("bfij,bfnj->bfni", rot, gt) + tr
+            acc = (p_k[:, 2] - 2 * p_k[:, 1] + p_k[:, 0]) - (g_k[:, 2] - 2 * g_k[:, 1] + g_k[:, 0])
+            loss = (pred.double() - gt).abs().mean() + acc_weight * acc.norm(dim=-1).mean()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            running += loss.item()
+            n += 1
+            bar.update(1)
+        log["epoch_loss"].append(round(running / max(n, 1), 6))
+        if not progress:
+            print(f"temporal epoch {len(log['epoch_loss'])}/{epochs}: loss {log['epoch_loss'][-1]:.5f}, "
+                  f"{time.monotonic() - t0:.0f} s", flush=True)
+    bar.close()
+    log["seconds"] = round(time.monotonic() - t0, 1)
+    log["examples"] = int(len(tri))
+    return model.eval(), log
+
+
+@torch.no_grad()
+def refine(model: TemporalRefineNet, features: np.ndarray) -> np.ndarray:
+    return np.concatenate([model(torch.from_numpy(features[a:a + 1024])).numpy()
+                           for a in range(0, len(features), 1024)]).astype(np.float64)
+
+
+def sequence_metrics(data: dict, world_by_method: dict[str, np.ndarray], mask: np.ndarray | None = None) -> dict:
+    """MPJPE, PA-MPJPE (mm), PCK@10cm and acceleration error (mm/frame^2) of world joints
+    (S, F, 22, 3) per method, on found frames (and ``mask`` (S, F) when given); acceleration
+    over runs of such frames."""
+    from live.metrics import acceleration_error, mpjpe, pa_mpjpe, pck
+
+    out = {}
+    found = data["found"] if mask is None else data["found"] & mask
+    gt = data["joints"].astype(np.float64)
+    for name, w in world_by_method.items():
+        accs = []
+        for s in range(len(found)):
+            runs = np.split(np.arange(found.shape[1]), np.flatnonzero(np.diff(found[s].astype(int))) + 1)
+            for r in runs:
+                if found[s, r[0]] and len(r) >= 3:
+                    accs.append((acceleration_error(w[s, r], gt[s, r]), len(r) - 2))
+        acc = sum(a * n for a, n in accs) / max(sum(n for _, n in accs), 1)
+        out[name] = {"frames": int(found.sum()), "mpjpe_mm": round(1000 * mpjpe(w[found], gt[found]), 1),
+                     "pa_mpjpe_mm": round(1000 * pa_mpjpe(w[found], gt[found]), 1),
+                     "pck_10cm": round(pck(w[found], gt[found], 0.1), 4),
+                     "acc_mm_per_frame2": round(1000 * acc, 2)}
+    return out
+
+
+def one_euro(data: dict, world: np.ndarray) -> np.ndarray:
+    """The stage's default One Euro filter over each sequence's found frames (the baseline)."""
+    from models.skeleton.filters import OneEuroFilter
+    from models.skeleton.runtime import SkeletonStage
+
+    defaults = SkeletonStage.__init__.__kwdefaults__
+    out = np.full_like(world, np.nan)
+    for s in range(len(world)):
+        f = OneEuroFilter(min_cutoff=defaults["min_cutoff"], beta=defaults["beta"])
+        for k in np.flatnonzero(data["found"][s]):
+            out[s, k] = f(world[s, k], data["t_ns"][s, k] * 1e-9)
+    return out
+
+
+def to_world_of(ex: dict, local: np.ndarray, shape: tuple) -> np.ndarray:
+    out = np.full(shape, np.nan)
+    tw = ex["to_world"]
+    out[ex["seq"], ex["frame"]] = np.einsum("nij,nkj->nki", tw[:, :3, :3], local) + tw[:, None, :3, 3]
+    return out
+
+
+def export_onnx(model: TemporalRefineNet, path: Path, window: int, example: np.ndarray) -> float:
+    """Write the ONNX file (input "window" (B, D), output "joints" (B, 22, 3)); returns the max
+    |onnxruntime - torch| (m) on ``example`` features."""
+    import onnxruntime as ort
+
+    torch.onnx.export(model.eval(), (torch.from_numpy(example[:1]),), str(path), input_names=["window"],
+                      output_names=["joints"], dynamic_axes={"window": {0: "batch"}, "joints": {0: "batch"}},
+                      opset_version=17, dynamo=False)
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    got = sess.run(None, {"window": example})[0]
+    return float(np.abs(got - refine(model, example)).max())
+
+
+def main(argv: list[str] | None = None) -> dict:
+    from models.skeleton.runtime import DEFAULT_MODEL
+    from models.skeleton.temporal import file_sha256
+    from sim.skeleton_data import VAL_SUBJECTS
+    from sim.skeleton_sequences import SEQUENCE_FPS, SEQUENCE_FRAMES, generate_sequences
+
+    p = argparse.ArgumentParser(prog="train_skeleton_temporal", description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="smoke run: a few sequences, 1 epoch")
+    p.add_argument("--window", type=int, default=16, help="past samples at 30 fps (16 = 0.53 s)")
+    p.add_argument("--epochs", type=int, default=None)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--acc-weight", type=float, default=0.3)
+    p.add_argument("--net", type=json.loads, default={}, metavar="JSON", help='e.g. \'{"width": 256}\'')
+    p.add_argument("--n-train", type=int, default=None, help="training sequences (default 1000)")
+    p.add_argument("--n-val", type=int, default=None, help="validation sequences (default 150)")
+    p.add_argument("--regressor", type=Path, default=DEFAULT_MODEL)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    n_train = args.n_train or (6 if args.quick else 1000)
+    n_val = args.n_val or (3 if args.quick else 150)
+    epochs = args.epochs or (1 if args.quick else 30)
+    out_dir = args.out or (ROOT / ".cache" / "skeleton_temporal_quick" if args.quick else WEIGHTS)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    progress = not args.no_progress
+    t0 = time.monotonic()
+    data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress),
+            "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress)}
+    examples, per_frame = {}, {}
+    for split, d in data.items():
+        per_frame[split] = regress_sequences(d, args.regressor, args.threads)
+        examples[split] = build_examples(d, *per_frame[split], args.window, SEQUENCE_FPS)
+    data_seconds = round(time.monotonic() - t0, 1)
+    model, log = train(examples["train"], args.window, epochs, args.lr, args.acc_weight, args.seed, args.net,
+                       progress)
+    val, ex = data["val"], examples["val"]
+    raw_world = per_frame["val"][0]
+    refined = to_world_of(ex, refine(model, ex["features"]), raw_world.shape)
+    methods = {"per_frame": raw_world, "one_euro": one_euro(val, raw_world), "temporal": refined}
+    on_performer = np.zeros_like(val["found"])
+    on_performer[ex["seq"], ex["frame"]] = ex["on_performer"]
+    results = {"on_performer": sequence_metrics(val, methods, on_performer),
+               "all_found_frames": sequence_metrics(val, methods),
+               "finder": {"found_frames": int(val["found"].sum()),
+                          "on_clutter_frames": int(val["found"].sum() - on_performer.sum())}}
+    onnx_path = out_dir / "skeleton_temporal.onnx"
+    diff = export_onnx(model, onnx_path, args.window, ex["features"][:8])
+    card = {
+        "model": "skeleton_temporal", "file": onnx_path.name, "architecture": "TemporalRefineNet (MLP)",
+        "parameters": int(sum(p.numel() for p in model.parameters())),
+        "window": args.window, "fps": SEQUENCE_FPS,
+        "input": {"name": "window", "shape": ["batch", args.window * 89],
+                  "layout": "models.skeleton.temporal.TemporalWindow.features: W x 22 x 3 joints in the newest "
+                            "frame's person frame (newest first), W x 22 confidences, W observed flags"},
+        "output": {"name": "joints", "shape": ["batch", 22, 3], "frame": "person frame of the newest frame"},
+        "regressor": args.regressor.name, "regressor_sha256": file_sha256(args.regressor),
+        "onnx_opset": 17, "onnx_max_abs_diff_m": diff,
+        "recipe": {"epochs": epochs, "lr": args.lr, "acc_weight": args.acc_weight, "batch": 256,
+                   "optimizer": "AdamW, weight decay 1e-4, one-cycle", "net": args.net,
+                   "loss": "L1 joints of 3 consecutive frames + acc_weight x acceleration error",
+                   "augmentation": "mirror (x -> -x, left/right swapped)"},
+        "training": log, "data_seconds": data_seconds,
+        "data": {split: {"sequences": int(len(d["found"])), "frames_per_sequence": SEQUENCE_FRAMES,
+                         "found_frames": int(d["found"].sum()), "clips": int(len(np.unique(d["clip"]))),
+                         "bodies": sorted(np.unique(d["body"]).tolist())} for split, d in data.items()},
+        "split": {"val_subjects": sorted(VAL_SUBJECTS),
+                  "note": "val: OAK-D 1.5-4 m, unseen CMU subjects and unseen bodies (sim.skeleton_sequences); "
+                          "on_performer: frames where the person finder found the performer (the setting of "
+                          "the per-frame card); all_found_frames: also frames where it picked clutter"},
+        "metrics": {"val": results}, "seed": args.seed, "threads": args.threads,
+        "command": "python -m models.train.train_skeleton_temporal "
+                   + " ".join(argv if argv is not None else sys.argv[1:]),
+        "software": {"torch": torch.__version__, "python": platform.python_version()},
+    }
+    (out_dir / "skeleton_temporal.json").write_text(json.dumps(card, indent=1) + "\n")
+    for name, m in results["on_performer"].items():
+        print(f"{name:10s} MPJPE {m['mpjpe_mm']:5.1f}  PA-MPJPE {m['pa_mpjpe_mm']:5.1f}  "
+              f"PCK {m['pck_10cm']:.3f}  Acc {m['acc_mm_per_frame2']:5.2f} mm/frame^2", flush=True)
+    return card
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""Consecutive-frame training and validation data for the temporal skeleton model.
+
+One sequence = what the live skeleton stage sees over ``SEQUENCE_FRAMES`` consecutive 30 fps
+frames: a real CMU clip window on a body of the library, seen by the same random virtual camera,
+room and sensor noise as the per-frame data (``sim.skeleton_data.random_view``), with one
+``PersonFinder`` kept across the frames as the runtime keeps it. Stored per frame: the person
+sample (512 points, person frame), the person frame (``to_world``), whether the finder found the
+performer, and the true world joints. The regressor is not run here: the temporal trainer runs
+the current skeleton model on the stored samples, so the data outlives any one model.
+
+Splits and held-out subjects / bodies are those of ``sim.skeleton_data``; "val" is the goal's
+setting (OAK-D, 1.5-4 m). Jobs are seeded, so the result does not depend on the worker count.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import multiprocessing as mp
+
+import numpy as np
+
+from live.errors import UserInputError
+from live.skeleton import NUM_JOINTS
+from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, body_by_name, clip_motion,
+                               grounded_joints, plan_jobs, random_view, visible_joints)
+
+SEQUENCE_FPS = 30.0
+SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleared room
+
+
+def _motion_at_fps(file: str):
+    from live.rig_mapping import resample
+
+    return resample(clip_motion(file), SEQUENCE_FPS)
+
+
+def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
+    """Render one job's consecutive frames; arrays with a leading frame axis (F = SEQUENCE_FRAMES,
+    frames past the end of a short clip are marked not found)."""
+    from live.frames import DepthFrame
+    from models.skeleton.preprocess import PersonFinder, PreprocessConfig
+    from sim.synth import SyntheticScene
+
+    rng = np.random.default_rng(job.seed)
+    motion, body = _motion_at_fps(job.clip), body_by_name(job.body)
+    root, joints = grounded_joints(motion, body)
+    span = min(len(root), SEQUENCE_FRAMES)
+    start = int(rng.integers(0, len(root) - span + 1))
+    window = np.arange(start, start + span)
+    centre = joints[window, 0].mean(axis=0)
+    shift = np.array([centre[0], 0.0, centre[2]])
+    root, joints = root - shift, joints - shift
+    camera, room = random_view(job, rng)
+    scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
+    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS))  # the runtime's settings
+    f = SEQUENCE_FRAMES
+    out = {"points": np.zeros((f, STORED_POINTS, 3), np.float32),
+           "to_world": np.tile(np.eye(4), (f, 1, 1)), "found": np.zeros(f, bool),
+           "joints": np.zeros((f, NUM_JOINTS, 3), np.float32), "visible": np.zeros((f, NUM_JOINTS), bool),
+           "t_ns": np.zeros(f, np.int64)}
+    for k, i in enumerate(window):
+        t_ns = 1_000_000_000 + int(round(k * 1e9 / SEQUENCE_FPS))
+        depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
+        person = finder.find(DepthFrame(t_ns=t_ns, sensor="sim", camera_to_world=camera.camera_to_world,
+                                        depth_mm=depth_mm, intrinsics=camera.intrinsics))
+        out["joints"][k] = joints[i]
+        out["visible"][k] = visible_joints(joints[i], camera)
+        out["t_ns"][k] = t_ns
+        if person is not None:
+            out["points"][k] = person.points
+            out["to_world"][k] = person.to_world
+            out["found"][k] = True
+    return out
+
+
+def _cache_path(split: str, n_sequences: int, seed: int):
+    key = json.dumps({"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
+                      "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}, sort_keys=True)
+    return CACHE_DIR / f"seq_{split}_{n_sequences}_{seed}_{hashlib.sha1(key.encode()).hexdigest()[:8]}.npz"
+
+
+def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
+                       progress: bool = False) -> dict[str, np.ndarray]:
+    """The sequences of a split (cached under .cache/skeleton_data).
+
+    Returns points (S, F, 512, 3) float32 person frame, to_world (S, F, 4, 4), found (S, F) bool,
+    joints (S, F, 22, 3) float32 world, visible (S, F, 22) bool, t_ns (S, F) int64, and per
+    sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool."""
+    if split not in ("train", "val"):
+        raise UserInputError(f"sequence data has splits train and val, not {split!r}")
+    path = _cache_path(split, n_sequences, seed)
+    if cache and path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n.
+    jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1)[:n_sequences]
+    if workers > 1:
+        with mp.get_context("fork").Pool(workers) as pool:
+            it = pool.imap(run_sequence_job, jobs, chunksize=1)
+            results = list(_progress(it, len(jobs), split) if progress else it)
+    else:
+        results = [run_sequence_job(j) for j in (_progress(jobs, len(jobs), split) if progress else jobs)]
+    data = {k: np.stack([r[k] for r in results]) for k in results[0]}
+    for key in ("clip", "body", "camera"):
+        data[key] = np.array([getattr(j, key) for j in jobs])
+    data["subject"] = np.array([j.subject for j in jobs], np.int32)
+    data["closeup"] = np.array([j.closeup for j in jobs], bool)
+    if cache:
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, **data)
+        tmp.replace(path)
+    return data
+
+
+def _progress(it, total: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(it, total=total, desc=f"sequences {desc}", unit="seq", mininterval=5.0)
+
+
+__all__ = ["SEQUENCE_FPS", "SEQUENCE_FRAMES", "generate_sequences", "run_sequence_job"]
