@@ -4,7 +4,7 @@ Run: .venv/bin/python benchmarks/bench_skeleton.py [--frames 150] [--threads 1]
 Renders a real CMU clip on a body of the library (capsules when the library is missing) with the
 virtual OAK-D in a room with clutter, then times, per frame: the person finder (preprocess), the
 model alone (ours and the reference PointNet, same process, same input), and the whole stage
-(preprocess + model + flip guard + bone lengths + One Euro filter). Prints median and p95 (ms).
+(preprocess + model + flip guard + temporal model + One Euro filter). Prints median and p95 (ms).
 """
 
 from __future__ import annotations
@@ -79,7 +79,11 @@ def main(argv: list[str] | None = None) -> None:
         reg = SkeletonRegressor(path, threads=args.threads)
         rows.append((f"model alone: {label} ({reg.num_points} pts)", *timed(lambda c: reg(c.points), clouds * 2)))
         stage = SkeletonStage(path, threads=args.threads)
-        rows.append((f"whole stage: {label}", *timed(stage.estimate, frames)))
+        temporal = " (+ temporal model)" if stage.temporal is not None else ""
+        rows.append((f"whole stage: {label}{temporal}", *timed(stage.estimate, frames)))
+        if stage.temporal is not None:
+            plain = SkeletonStage(path, threads=args.threads, temporal=False)
+            rows.append((f"whole stage: {label}, One Euro only", *timed(plain.estimate, frames)))
     print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
     for name, med, p95 in rows:
         print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")

@@ -152,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
                        description="Train and export a model with its model card. Extra arguments go to the trainer "
                        "(see `livecap train WHAT -- --help`).")
-    p.add_argument("what", choices=["skeleton", "retarget", "skinning", "bodies"])
+    p.add_argument("what", choices=["skeleton", "skeleton-temporal", "retarget", "skinning", "bodies"])
     p.add_argument("--quick", action="store_true", help="a tiny run for smoke tests")
     p.add_argument("args", nargs=argparse.REMAINDER, help="more arguments for the trainer")
 

@@ -262,7 +262,8 @@ def cmd_eval(args) -> int:
     return 0
 
 
-_TRAINERS = {"skeleton": "models.train.train_skeleton", "retarget": "models.train.train_retarget",
+_TRAINERS = {"skeleton": "models.train.train_skeleton", "skeleton-temporal": "models.train.train_skeleton_temporal",
+             "retarget": "models.train.train_retarget",
              "skinning": "models.train.train_skinning", "bodies": "models.train.export_bodies"}
 
 

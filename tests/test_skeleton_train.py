@@ -71,3 +71,21 @@ def test_refinement_stage_votes_from_each_joints_nearest_points():
         for j in range(22):
             near = np.argsort(((p[b] - coarse[b, j]) ** 2).sum(-1))[:5]
             np.testing.assert_allclose(refined[b, j], p[b, near].mean(axis=0), atol=1e-5)
+
+
+def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
+    from models.skeleton.runtime import DEFAULT_MODEL, SkeletonStage
+    from models.skeleton.temporal import file_sha256
+    from models.train.train_skeleton_temporal import main
+
+    card = main(["--quick", "--out", str(tmp_path), "--no-progress", "--workers", "2", "--threads", "1"])
+    assert json.loads((tmp_path / "skeleton_temporal.json").read_text()) == json.loads(json.dumps(card))
+    assert card["onnx_max_abs_diff_m"] < 1e-4
+    assert card["regressor_sha256"] == file_sha256(DEFAULT_MODEL)
+    assert card["data"]["train"]["found_frames"] > 0
+    assert not set(card["data"]["val"]["bodies"]) & set(card["data"]["train"]["bodies"])
+    val = card["metrics"]["val"]["on_performer"]
+    assert set(val) == {"per_frame", "one_euro", "temporal"} and val["temporal"]["mpjpe_mm"] > 0
+    stage = SkeletonStage(temporal=tmp_path / "skeleton_temporal.onnx")
+    assert stage.temporal is not None and stage.temporal.window == card["window"]
+    assert stage.use_filter is False  # the temporal model replaces One Euro by default

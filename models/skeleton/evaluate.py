@@ -113,7 +113,10 @@ def evaluate_sessions(paths: list[str | Path], model_path: str | Path | None = N
     if compare_baseline:
         models["baseline"] = BASELINE_MODEL
     return {"sessions": [str(p) for p in paths],
-            "models": {name: evaluate_model(sessions, path, threads, **stage_options)
+            # The temporal model learnt our regressor's errors: the baseline runs without it.
+            "models": {name: evaluate_model(sessions, path, threads,
+                                            **({**stage_options, "temporal": False} if name == "baseline"
+                                               else stage_options))
                        for name, path in models.items()}}
 
 

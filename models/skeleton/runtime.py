@@ -82,7 +82,8 @@ class SkeletonStage:
 
     temporal: the temporal model (True: the shipped one when it was trained behind this
     regressor, else skipped with a warning; a path: that model, which must match; False: off).
-    min_cutoff / beta: One Euro filter (Hz, and Hz per m/s); filter=False gives raw joints.
+    min_cutoff / beta: One Euro filter (Hz, and Hz per m/s); filter: One Euro on or off (None:
+    on only without a temporal model); temporal=False, filter=False gives raw joints.
     keep_bones: bone lengths fixed per performer once learned (off by
     default: with the current model it costs ~10 mm MPJPE); flip_guard: undo whole-body
     left/right label flips. reset_after_s: forget the performer after this long without one."""
@@ -92,13 +93,16 @@ class SkeletonStage:
     def __init__(self, model_path: str | Path | None = None, threads: int = 1, *,
                  finder: PersonFinder | None = None, temporal: bool | str | Path = True,
                  min_cutoff: float = 1.5, beta: float = 3.0,
-                 filter: bool = True, keep_bones: bool = False, flip_guard: bool = True,
+                 filter: bool | None = None, keep_bones: bool = False, flip_guard: bool = True,
                  reset_after_s: float = 0.5):
         self.regressor = SkeletonRegressor(model_path, threads)
         self.temporal = _open_temporal(temporal, self.regressor.path, threads)
         self.finder = finder or PersonFinder(PreprocessConfig(num_points=self.regressor.num_points))
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
-        self.use_filter, self.keep_bones, self.use_flip_guard = filter, keep_bones, flip_guard
+        # The temporal model smooths already (and better, docs/skeleton.md): One Euro on top would
+        # only add lag, so by default it runs only without one.
+        self.use_filter = self.temporal is None if filter is None else bool(filter)
+        self.keep_bones, self.use_flip_guard = keep_bones, flip_guard
         self.reset_after_ns = int(reset_after_s * 1e9)
         self._counters = StageCounters()
         self.last_cloud: PersonCloud | None = None

@@ -65,7 +65,7 @@ class TemporalRefineNet(nn.Module):
         joints = x[:, :w * 66].reshape(-1, w, 66)
         newest = joints[:, 0]
         offsets = (joints[:, 1:] - newest[:, None]) * 10.0
-        z = torch.cat([newest, offsets.reshape(len(x), -1), x[:, w * 66:]], dim=1)
+        z = torch.cat([newest, offsets.flatten(1), x[:, w * 66:]], dim=1)
         return (newest + self.linear(z) + self.mlp(z)).reshape(-1, 22, 3)
 
 

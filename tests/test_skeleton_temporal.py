@@ -1,0 +1,64 @@
+"""The temporal skeleton model's window sampling and its place in the stage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from live.errors import ModelError
+from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL, feature_size, sample_history
+
+
+def _history(times, rng):
+    return np.asarray(times, float), rng.normal(size=(len(times), 22, 3)), rng.random((len(times), 22))
+
+
+def test_window_at_the_training_rate_is_the_past_frames_newest_first():
+    rng = np.random.default_rng(0)
+    t, j, c = _history(np.arange(20) / 30.0, rng)
+    win = sample_history(t, j, c, t[-1], np.eye(4), window=8, fps=30.0)
+    np.testing.assert_allclose(win.joints, j[::-1][:8], atol=1e-9)
+    np.testing.assert_allclose(win.confidence, c[::-1][:8], atol=1e-9)
+    assert win.observed.tolist() == [1.0] * 8
+    assert win.features().shape == (feature_size(8),)
+
+
+def test_window_interpolates_a_faster_camera_and_repeats_the_first_frame():
+    rng = np.random.default_rng(1)
+    t, j, c = _history(np.arange(7) / 60.0, rng)  # 60 fps, only 0.1 s of history
+    win = sample_history(t, j, c, t[-1], np.eye(4), window=6, fps=30.0)
+    # 30 fps samples fall on every other 60 fps frame, then before the first one.
+    np.testing.assert_allclose(win.joints[:4], j[[6, 4, 2, 0]], atol=1e-9)
+    np.testing.assert_allclose(win.joints[4:], j[[0, 0]], atol=1e-9)
+    assert win.observed.tolist() == [1, 1, 1, 1, 0, 0]
+
+
+def test_window_is_in_the_newest_person_frame():
+    rng = np.random.default_rng(2)
+    t, j, c = _history(np.arange(4) / 30.0, rng)
+    yaw = 0.7
+    to_world = np.eye(4)
+    to_world[:3, :3] = [[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]]
+    to_world[:3, 3] = (1.0, 0.0, -2.0)
+    win = sample_history(t, j, c, t[-1], to_world, window=4, fps=30.0)
+    back = win.joints @ to_world[:3, :3].T + to_world[:3, 3]
+    np.testing.assert_allclose(back, j[::-1], atol=1e-9)
+
+
+@pytest.mark.skipif(not DEFAULT_TEMPORAL_MODEL.is_file(), reason="no shipped temporal model")
+def test_stage_uses_the_temporal_model_only_behind_its_regressor(tmp_path):
+    from models.skeleton.runtime import BASELINE_MODEL, SkeletonStage
+
+    assert SkeletonStage().temporal is not None
+    assert SkeletonStage(temporal=False).temporal is None
+    # The shipped temporal model was trained on the shipped regressor's errors, not the baseline's.
+    assert SkeletonStage(BASELINE_MODEL).temporal is None
+    with pytest.raises(ModelError, match="another skeleton model"):
+        SkeletonStage(BASELINE_MODEL, temporal=DEFAULT_TEMPORAL_MODEL)
+
+
+def test_missing_temporal_model_is_a_model_error(tmp_path):
+    from models.skeleton.runtime import SkeletonStage
+
+    with pytest.raises(ModelError, match="no temporal skeleton model"):
+        SkeletonStage(temporal=tmp_path / "none.onnx")
