@@ -278,27 +278,35 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     jobs = plan_jobs(split, n_samples, seed)
-    results = []
-    if workers > 1:
-        ctx = mp.get_context("fork")
-        with ctx.Pool(workers) as pool:
-            it = pool.imap(run_job, jobs, chunksize=2)
-            results = list(_progress(it, len(jobs), split) if progress else it)
-    else:
-        results = [run_job(j) for j in (_progress(jobs, len(jobs), split) if progress else jobs)]
-    data = _concat(jobs, results, n_samples)
+    data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),
+                   n_samples)
     if cache:
-        CACHE_DIR.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **data)
-        tmp.replace(path)
+        save_cache(path, data)
     return data
 
 
-def _progress(it, total: int, desc: str):
-    from tqdm import tqdm
+def run_jobs(fn, jobs: list, workers: int, progress: str | None = None, chunksize: int = 1) -> list:
+    """[fn(job) for job in jobs] on a fork pool of ``workers`` (in order: seeded jobs give the
+    same result for any worker count); a progress bar labelled ``progress`` when given."""
+    def bar(it):
+        if progress is None:
+            return it
+        from tqdm import tqdm
 
-    return tqdm(it, total=total, desc=f"data {desc}", unit="job", mininterval=5.0)
+        return tqdm(it, total=len(jobs), desc=progress, unit="job", mininterval=5.0)
+
+    if workers <= 1:
+        return [fn(j) for j in bar(jobs)]
+    with mp.get_context("fork").Pool(workers) as pool:
+        return list(bar(pool.imap(fn, jobs, chunksize=chunksize)))
+
+
+def save_cache(path: Path, data: dict[str, np.ndarray]) -> None:
+    """Write a dataset cache atomically (a killed run leaves no half-written file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, **data)
+    tmp.replace(path)
 
 
 def _concat(jobs: list[Job], results: list[dict], n_samples: int) -> dict[str, np.ndarray]:
@@ -335,6 +343,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
-           "plan_jobs", "run_job", "random_view", "clear_view",
+           "plan_jobs", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
            "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

@@ -16,14 +16,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing as mp
 
 import numpy as np
 
 from live.errors import UserInputError
 from live.skeleton import NUM_JOINTS
 from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, body_by_name, clip_motion,
-                               grounded_joints, plan_jobs, random_view, visible_joints)
+                               grounded_joints, plan_jobs, random_view, run_jobs, save_cache, visible_joints)
 
 SEQUENCE_FPS = 30.0
 SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleared room
@@ -95,29 +94,15 @@ def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int
             return {k: z[k] for k in z.files}
     # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n.
     jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1)[:n_sequences]
-    if workers > 1:
-        with mp.get_context("fork").Pool(workers) as pool:
-            it = pool.imap(run_sequence_job, jobs, chunksize=1)
-            results = list(_progress(it, len(jobs), split) if progress else it)
-    else:
-        results = [run_sequence_job(j) for j in (_progress(jobs, len(jobs), split) if progress else jobs)]
+    results = run_jobs(run_sequence_job, jobs, workers, f"sequences {split}" if progress else None)
     data = {k: np.stack([r[k] for r in results]) for k in results[0]}
     for key in ("clip", "body", "camera"):
         data[key] = np.array([getattr(j, key) for j in jobs])
     data["subject"] = np.array([j.subject for j in jobs], np.int32)
     data["closeup"] = np.array([j.closeup for j in jobs], bool)
     if cache:
-        CACHE_DIR.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **data)
-        tmp.replace(path)
+        save_cache(path, data)
     return data
-
-
-def _progress(it, total: int, desc: str):
-    from tqdm import tqdm
-
-    return tqdm(it, total=total, desc=f"sequences {desc}", unit="seq", mininterval=5.0)
 
 
 __all__ = ["SEQUENCE_FPS", "SEQUENCE_FRAMES", "generate_sequences", "run_sequence_job"]
