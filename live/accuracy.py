@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from live.frames import FrameResult
@@ -9,18 +11,25 @@ from live.metrics import mpjpe, pa_mpjpe, pck
 
 
 class AccuracySink:
-    def __init__(self) -> None:
+    """Scores each skeleton against the ground truth of its own t_ns: the frame's, or with a
+    lagging temporal model that of an earlier frame (the last ``keep`` truths are kept)."""
+
+    def __init__(self, keep: int = 64) -> None:
         self.pred: list[np.ndarray] = []
         self.gt: list[np.ndarray] = []
         self.frames_with_truth = 0
+        self._truth: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._keep = keep
 
     def send(self, result: FrameResult) -> None:
-        if result.truth is None or result.truth.t_ns != result.t_ns:
-            return
-        self.frames_with_truth += 1
-        if result.skeleton is not None:
+        if result.truth is not None and result.truth.t_ns == result.t_ns:
+            self.frames_with_truth += 1
+            self._truth[result.t_ns] = np.asarray(result.truth.joints, np.float64)
+            while len(self._truth) > self._keep:
+                self._truth.popitem(last=False)
+        if result.skeleton is not None and result.skeleton.t_ns in self._truth:
             self.pred.append(np.asarray(result.skeleton.joints, np.float64))
-            self.gt.append(np.asarray(result.truth.joints, np.float64))
+            self.gt.append(self._truth[result.skeleton.t_ns])
 
     def close(self) -> None:
         pass

@@ -21,6 +21,7 @@ class RunOptions:
     hand_ik: bool = False
     model: Path | None = None
     threads: int = 1
+    lag: int = 0
     vmc: str | None = None
     vmc_rate: float = 60.0
     viewer: str | None = None
@@ -45,8 +46,10 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if Path(model).is_file():
         from models.skeleton.runtime import SkeletonStage
 
-        stages.append(SkeletonStage(model_path=model, threads=opts.threads))
+        stages.append(SkeletonStage(model_path=model, threads=opts.threads, lag=opts.lag))
         parts["skeleton"] = stages[-1]
+    elif opts.lag:
+        raise UserInputError("--lag needs the skeleton model (models/weights/skeleton.onnx)")
     else:
         # No skeleton model: the pipeline still turns every depth frame into a world cloud.
         stages.append(CloudStage())

@@ -27,7 +27,7 @@ def _run_options(args, out: Path, video: Path | None = None):
     from live.assemble import RunOptions
 
     return RunOptions(out=out, avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
-                      hand_ik=args.hand_ik, model=args.model, threads=args.threads, vmc=args.vmc,
+                      hand_ik=args.hand_ik, model=args.model, threads=args.threads, lag=args.lag, vmc=args.vmc,
                       vmc_rate=args.vmc_rate, viewer=args.viewer, video=video or args.video)
 
 
@@ -65,6 +65,9 @@ def _capture_mode_stages(mode: str, source, stages: list, args) -> list:
         raise UserInputError(f"--only {mode} needs the skeleton model (models/weights/skeleton.onnx)")
     if mode == "depth":
         return stages
+    if mode == "fused" and depth_stage.lag_s > 0:
+        raise UserInputError("--only fused works with the online skeleton (--lag 0): the suit's samples "
+                             "would meet depth skeletons from earlier frames")
     capture = build_stages(mode, calibration=args.calibration, depth_stage=depth_stage,
                            stream_meta=suit[0].meta if suit else None)
     rest = [s for s in stages if getattr(s, "name", "") not in ("skeleton", "cloud")]
@@ -249,7 +252,7 @@ def cmd_eval(args) -> int:
             if not path.is_file():
                 raise UserInputError(f"no such session: {path}")
         report = evaluate_sessions([str(p) for p in args.sessions], model_path=args.model,
-                                   compare_baseline=args.compare == "baseline", threads=args.threads)
+                                   compare_baseline=args.compare == "baseline", threads=args.threads, lag=args.lag)
     else:
         from live.body import load_body
         from live.retarget.evaluate import evaluate_retarget, format_report
@@ -257,7 +260,8 @@ def cmd_eval(args) -> int:
         if not Path(args.motion).is_file():
             raise UserInputError(f"no such motion file: {args.motion}")
         report = evaluate_retarget(args.motion, load_body(args.source_body), load_body(args.target_body),
-                                   from_=args.from_, retarget=args.retarget, max_frames=args.max_frames)
+                                   from_=args.from_, retarget=args.retarget, max_frames=args.max_frames,
+                                   lag=args.lag)
     print(_json.dumps(report, indent=2, default=str) if args.json else format_report(report))
     return 0
 

@@ -60,22 +60,26 @@ def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray,
 
 
 def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0,
-                    skeleton_model: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    skeleton_model: str | Path | None = None, lag: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Run the virtual camera and the skeleton stage over the motion on the source body.
 
     Returns (joints T x 22 x 3 world, found (T,) bool); frames where nobody was found repeat the
-    last skeleton (the first found one before any), as a live avatar would hold its pose."""
+    last skeleton (the first found one before any), as a live avatar would hold its pose. With a
+    lagging temporal model (``lag`` frames) each skeleton is put at the frame it estimates; the
+    last ``lag`` frames, which it would give after the clip's end, hold the last one."""
     from models.skeleton.runtime import SkeletonStage
     from sim.synth import SyntheticScene
 
     scene = SyntheticScene.build(motion, source_body, camera=camera, fps=motion.fps, seed=seed)
-    stage = SkeletonStage(skeleton_model)
+    stage = SkeletonStage(skeleton_model, lag=lag)
     out = np.full((scene.num_frames, 22, 3), np.nan)
+    frame_at: dict[int, int] = {}
     for i in range(scene.num_frames):
         t_ns = 1_000_000_000 + int(round(i * 1e9 / motion.fps))
+        frame_at[t_ns] = i
         sk = stage.estimate(scene.depth(i, t_ns))
         if sk is not None:
-            out[i] = sk.joints + scene.shift  # back to the motion's own coordinates
+            out[frame_at[sk.t_ns]] = sk.joints + scene.shift  # back to the motion's own coordinates
     found = ~np.isnan(out[:, 0, 0])
     if not found.any():
         raise UserInputError("the skeleton stage found nobody in any frame")
@@ -106,7 +110,7 @@ def prepare_motion(motion, fps: float = 30.0, max_frames: int | None = None):
 def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton", retarget: str = "analytic",
                       *, fps: float = 30.0, max_frames: int | None = None, model: str | Path | None = None,
                       camera: str = "oak-d", seed: int = 0, skeleton_model: str | Path | None = None,
-                      ) -> dict[str, Any]:
+                      lag: int = 0) -> dict[str, Any]:
     """Evaluate one retargeter on one motion from a source body to a target body.
 
     motion: a Motion or a BVH path (grounded, resampled to ``fps``, first ``max_frames`` kept);
@@ -124,9 +128,10 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
     src = source_body if hasattr(source_body, "rest_joints") else load_body(source_body)
     tgt = target_body if hasattr(target_body, "rest_joints") else load_body(target_body)
     src_joints, src_rest, found = source_skeletons(motion, src, from_, camera=camera, seed=seed,
-                                                   skeleton_model=skeleton_model)
+                                                   skeleton_model=skeleton_model, lag=lag)
     result = score(motion, tgt, src_joints, src_rest, retarget, fps=fps, model=model)
-    result.update(found=float(found.mean()), source_body=getattr(src, "name", str(source_body)), **{"from": from_})
+    result.update(found=float(found.mean()), source_body=getattr(src, "name", str(source_body)), lag=lag,
+                  **{"from": from_})
     return result
 
 
@@ -206,7 +211,7 @@ HELD_OUT_CLIPS = ("cc_007_01.bvh", "mb_08_01.bvh", "mb_12_01.bvh", "mb_16_15.bvh
 
 def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD_OUT_CLIPS,
                    bvh_dir: str | Path | None = None, model: str | Path | None = None, seed: int = 0,
-                   progress=None) -> list[dict[str, Any]]:
+                   lag: int = 0, progress=None) -> list[dict[str, Any]]:
     """Analytic and learned side by side on held-out clips x held-out body pairs (each held-out
     preset to the next), the same source skeletons fed to both. Returns one averaged result per
     retargeter (metrics are means over the runs; ``runs`` says how many)."""
@@ -221,8 +226,8 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
         motion = prepare_motion(bvh / clip, 30.0, max_frames)
         for i, src in enumerate(bodies):
             tgt = bodies[(i + 1) % len(bodies)]
-            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i) if from_ == "depth" \
-                else source_skeletons(motion, src, from_)
+            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i, lag=lag) \
+                if from_ == "depth" else source_skeletons(motion, src, from_)
             for kind in runs:
                 r = score(motion, tgt, joints, rest, kind, model=model)
                 r["found"] = float(found.mean())
@@ -233,27 +238,35 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
     for kind, rows in runs.items():
         mean = {m: float(np.mean([r[m] for r in rows])) for m in METRICS + ("found",)}
         mean.update(retarget=kind, motion=f"{len(clips)} held-out clips x {max_frames} frames",
-                    source_body=f"{len(bodies)} held-out bodies", target_body="the next one", runs=len(rows),
+                    source_body=f"{len(bodies)} held-out bodies", target_body="the next one", runs=len(rows), lag=lag,
                     frames=int(sum(r["frames"] for r in rows)), fps=30.0, **{"from": from_})
         out.append(mean)
     return out
 
 
-if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] [max_frames] [--card]
+if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] [max_frames] [--lag N] [--card]
+    import argparse
     import json
     import sys
 
-    args = [a for a in sys.argv[1:] if a != "--card"]
-    which = args[0] if args else "skeleton"
-    frames = int(args[1]) if len(args) > 1 else 300
-    table = held_out_table(which, max_frames=frames, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    cli = argparse.ArgumentParser(prog="python -m live.retarget.evaluate",
+                                  description="analytic and learned retargeters side by side on held-out data")
+    cli.add_argument("which", nargs="?", default="skeleton", choices=["skeleton", "depth"])
+    cli.add_argument("frames", nargs="?", type=int, default=300)
+    cli.add_argument("--lag", type=int, default=0, help="skeleton stage lag in frames (with depth)")
+    cli.add_argument("--card", action="store_true", help="record the table in the retargeter's model card")
+    a = cli.parse_args()
+    table = held_out_table(a.which, max_frames=a.frames, lag=a.lag,
+                           progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_report(table))
     print(json.dumps(table, indent=1))
-    if "--card" in sys.argv:  # record the table in the retargeter's model card
+    if a.card:
         from live.retarget.learned import DEFAULT_MODEL
 
         card_path = DEFAULT_MODEL.with_suffix(".json")
         card = json.loads(card_path.read_text())
-        card.setdefault("evaluation", {})[f"from_{which}"] = {
-            "command": f"python -m live.retarget.evaluate {which} {frames} --card", "rows": table}
+        key = f"from_{a.which}" + (f"_lag{a.lag}" if a.lag else "")
+        lag = f" --lag {a.lag}" if a.lag else ""
+        card.setdefault("evaluation", {})[key] = {
+            "command": f"python -m live.retarget.evaluate {a.which} {a.frames}{lag} --card", "rows": table}
         card_path.write_text(json.dumps(card, indent=2) + "\n")

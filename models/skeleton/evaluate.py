@@ -67,8 +67,9 @@ def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]]
     acc, acc_w, missing, frames = [], [], 0, 0
     for pairs in pairs_per_session:
         stage = SkeletonStage(model_path, threads, **stage_options)
+        truth_at = {depth.t_ns: truth for depth, truth in pairs}
         p_s, g_s, t_s = [], [], []
-        for depth, truth in pairs:
+        for depth, _ in pairs:
             t0 = time.perf_counter()
             skel = stage.estimate(depth)
             latency.append((time.perf_counter() - t0) * 1e3)
@@ -76,9 +77,10 @@ def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]]
             if skel is None:
                 missing += 1
                 continue
+            # A lagging temporal model estimates an earlier frame: score it against that one.
             p_s.append(skel.joints)
-            g_s.append(truth.joints)
-            t_s.append(depth.t_ns)
+            g_s.append(truth_at[skel.t_ns].joints)
+            t_s.append(skel.t_ns)
         if p_s:
             p, g = np.asarray(p_s, np.float64), np.asarray(g_s, np.float64)
             preds.append(p)
@@ -115,7 +117,7 @@ def evaluate_sessions(paths: list[str | Path], model_path: str | Path | None = N
     return {"sessions": [str(p) for p in paths],
             # The temporal model learnt our regressor's errors: the baseline runs without it.
             "models": {name: evaluate_model(sessions, path, threads,
-                                            **({**stage_options, "temporal": False} if name == "baseline"
+                                            **({**stage_options, "temporal": False, "lag": 0} if name == "baseline"
                                                else stage_options))
                        for name, path in models.items()}}
 

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import ModelError
+from live.errors import ModelError, UserInputError
 from live.frames import DepthFrame, FrameResult, SkeletonFrame
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder, PreprocessConfig
-from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL, TemporalRefiner
+from models.skeleton.temporal import TemporalRefiner, temporal_model_path
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +64,8 @@ class StageCounters:
     skeletons: int = 0
     nobody: int = 0
     resets: int = 0
+    # Frames whose skeleton a lagging temporal model will give later (the first of a take).
+    delayed: int = 0
 
 
 def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, height: int) -> np.ndarray:
@@ -82,6 +84,9 @@ class SkeletonStage:
 
     temporal: the temporal model (True: the shipped one when it was trained behind this
     regressor, else skipped with a warning; a path: that model, which must match; False: off).
+    lag: with temporal=True, the shipped model of that lag (frames at 30 fps, 0 = online): each
+    skeleton comes out lag / 30 s later and much smoother (docs/skeleton.md); its t_ns is that of
+    the frame it estimates.
     min_cutoff / beta: One Euro filter (Hz, and Hz per m/s); filter: One Euro on or off (None:
     on only without a temporal model); temporal=False, filter=False gives raw joints.
     keep_bones: bone lengths fixed per performer once learned (off by
@@ -91,12 +96,13 @@ class SkeletonStage:
     name = "skeleton"
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1, *,
-                 finder: PersonFinder | None = None, temporal: bool | str | Path = True,
+                 finder: PersonFinder | None = None, temporal: bool | str | Path = True, lag: int = 0,
                  min_cutoff: float = 1.5, beta: float = 3.0,
                  filter: bool | None = None, keep_bones: bool = False, flip_guard: bool = True,
                  reset_after_s: float = 0.5):
         self.regressor = SkeletonRegressor(model_path, threads)
-        self.temporal = _open_temporal(temporal, self.regressor.path, threads)
+        self.temporal = _open_temporal(temporal, self.regressor.path, threads, int(lag))
+        self.lag_s = 0.0 if self.temporal is None else self.temporal.lag_s  # latency the model adds
         self.finder = finder or PersonFinder(PreprocessConfig(num_points=self.regressor.num_points))
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
         # The temporal model smooths already (and better, docs/skeleton.md): One Euro on top would
@@ -145,8 +151,14 @@ class SkeletonStage:
         joints = local @ rot.T + trans
         if self.use_flip_guard:
             joints = self.flips(joints)
+        self._last_t = frame.t_ns
+        t_ns = frame.t_ns
         if self.temporal is not None:
-            joints = self.temporal(frame.t_ns * 1e-9, joints, support, cloud.to_world)
+            refined = self.temporal(frame.t_ns, joints, support, cloud.to_world)
+            if refined is None:  # a lagging model: this frame's skeleton comes later
+                self._counters.delayed += 1
+                return None
+            t_ns, joints, support = refined.t_ns, refined.joints, refined.confidence
         conf = support
         if frame.depth_mm is not None and frame.intrinsics is not None:
             h, w = frame.depth_mm.shape
@@ -154,10 +166,9 @@ class SkeletonStage:
         if self.keep_bones:
             joints = self.bones(joints, conf)
         if self.use_filter:
-            joints = self.euro(joints, frame.t_ns * 1e-9)
-        self._last_t = frame.t_ns
+            joints = self.euro(joints, t_ns * 1e-9)
         self._counters.skeletons += 1
-        return SkeletonFrame(t_ns=frame.t_ns, joints=joints.astype(np.float32),
+        return SkeletonFrame(t_ns=t_ns, joints=joints.astype(np.float32),
                              confidence=np.clip(conf, 0.0, 1.0).astype(np.float32))
 
     def process(self, result: FrameResult) -> bool:
@@ -170,19 +181,31 @@ class SkeletonStage:
         return True
 
 
-def _open_temporal(temporal: bool | str | Path, regressor_path: Path, threads: int) -> TemporalRefiner | None:
+def _open_temporal(temporal: bool | str | Path, regressor_path: Path, threads: int,
+                   lag: int = 0) -> TemporalRefiner | None:
     """The stage's temporal model, or None (off, or the optional default is absent or was
-    trained behind another regressor: it would correct errors this regressor does not make)."""
+    trained behind another regressor: it would correct errors this regressor does not make).
+    A lag asks for a model that must exist and match."""
+    if lag < 0:
+        raise UserInputError(f"the skeleton lag is a number of frames >= 0, not {lag}")
     if temporal is False or temporal is None:
+        if lag:
+            raise UserInputError("a skeleton lag needs the temporal model (it is the one that lags)")
         return None
-    path = DEFAULT_TEMPORAL_MODEL if temporal is True else Path(temporal)
+    path = temporal_model_path(lag) if temporal is True else Path(temporal)
     if temporal is True and not path.is_file():
+        if lag:
+            shipped = sorted(p.stem for p in path.parent.glob("skeleton_temporal_lag*.onnx"))
+            raise UserInputError(f"no temporal skeleton model with lag {lag} ({path.name}); shipped: "
+                                 f"lag 0{''.join(', ' + s.rsplit('lag', 1)[1] for s in shipped)}")
         return None
     refiner = TemporalRefiner(path, threads)
+    if temporal is not True and lag and refiner.lag != lag:
+        raise UserInputError(f"{path.name} has lag {refiner.lag}, not the {lag} asked for")
     if refiner.matches(regressor_path):
         return refiner
     msg = f"{path.name} was trained behind another skeleton model than {regressor_path.name}"
-    if temporal is not True:
+    if temporal is not True or lag:
         raise ModelError(f"{msg} (retrain it: python -m models.train.train_skeleton_temporal --regressor ...)")
     log.warning("%s: temporal refinement off", msg)
     return None

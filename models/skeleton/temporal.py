@@ -11,6 +11,12 @@ look-ahead, no added latency) and stateless apart from the window, so replay is 
 The window is sampled in time, not in frames: at 60 fps or with dropped frames the history is
 interpolated to the training rate; before the first observation it repeats the first one (its
 flag says so).
+
+A model trained with a *lag* of L samples (card ``"lag"``, default 0) trades latency for
+smoothness: it sees L samples after the frame it estimates, so each skeleton comes out L / fps
+later (at 30 fps, lag 2 = 67 ms) with much less jitter. Its output is stamped with the time of
+the frame it estimates, the newest frame at least (L - 1/2) / fps old, so outputs keep the input
+frames' timestamps; the first frames of a take, and the last L of a replay, get no skeleton.
 """
 
 from __future__ import annotations
@@ -27,6 +33,12 @@ from live.skeleton import NUM_JOINTS
 
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
+
+
+def temporal_model_path(lag: int = 0) -> Path:
+    """The shipped temporal model of a lag: skeleton_temporal.onnx (online), or
+    skeleton_temporal_lag<L>.onnx."""
+    return DEFAULT_TEMPORAL_MODEL if lag == 0 else WEIGHTS_DIR / f"skeleton_temporal_lag{int(lag)}.onnx"
 
 
 @dataclass(frozen=True)
@@ -75,11 +87,23 @@ def sample_history(times_s: np.ndarray, joints_world: np.ndarray, confidence: np
     return TemporalWindow(joints=to_person_frame(j, to_world), confidence=c, observed=observed)
 
 
+@dataclass(frozen=True)
+class RefinedSkeleton:
+    """The temporal model's estimate of one frame: t_ns of that frame (``lag`` frames before
+    the newest one), world joints (22, 3) and that frame's confidences (22,)."""
+
+    t_ns: int
+    joints: np.ndarray
+    confidence: np.ndarray
+
+
 class TemporalRefiner:
     """The exported temporal model in an onnxruntime session, with its own history.
 
-    ``refiner(t_s, joints_world, confidence, to_world)`` -> refined world joints (22, 3) of the
-    current frame; ``reset()`` forgets the performer. ``window`` and ``fps`` come from the card."""
+    ``refiner(t_ns, joints_world, confidence, to_world)`` -> RefinedSkeleton of the current frame
+    (lag 0) or of the frame ``lag`` samples back, or None while a lagging model waits for its
+    first frames; ``reset()`` forgets the performer. ``window``, ``fps`` and ``lag`` come from
+    the card."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1):
         from live.onnx import open_session
@@ -89,6 +113,9 @@ class TemporalRefiner:
                                                retrain="python -m models.train.train_skeleton_temporal")
         self.window = int(self.card.get("window", 16))
         self.fps = float(self.card.get("fps", 30.0))
+        self.lag = int(self.card.get("lag", 0))
+        if not 0 <= self.lag < self.window:
+            raise ModelError(f"{self.path.name}: lag {self.lag} must be in [0, window {self.window})")
         inputs = self.session.get_inputs()
         if len(inputs) != 1 or inputs[0].shape[-1] != feature_size(self.window):
             raise ModelError(f"{self.path.name}: expected one (B, {feature_size(self.window)}) input, "
@@ -96,36 +123,52 @@ class TemporalRefiner:
         self._input = inputs[0].name
         self.reset()
 
+    @property
+    def lag_s(self) -> float:
+        """The latency the model adds (s): how much older than the newest frame its output is."""
+        return self.lag / self.fps
+
     def reset(self) -> None:
         # Enough history for the window, plus slack for faster cameras and dropped frames.
-        self._times: deque[float] = deque(maxlen=8 * self.window)
-        self._joints: deque[np.ndarray] = deque(maxlen=8 * self.window)
-        self._conf: deque[np.ndarray] = deque(maxlen=8 * self.window)
+        size = 8 * (self.window + self.lag)
+        self._times: deque[int] = deque(maxlen=size)
+        self._joints: deque[np.ndarray] = deque(maxlen=size)
+        self._conf: deque[np.ndarray] = deque(maxlen=size)
+        self._emitted: int | None = None
 
     def matches(self, regressor_path: Path) -> bool:
         """Whether this model was trained on the outputs of that regressor file."""
         want = self.card.get("regressor_sha256")
         return want is None or want == file_sha256(regressor_path)
 
-    def __call__(self, t_s: float, joints_world: np.ndarray, confidence: np.ndarray,
-                 to_world: np.ndarray) -> np.ndarray:
-        if self._times and t_s <= self._times[-1]:
+    def __call__(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray,
+                 to_world: np.ndarray) -> RefinedSkeleton | None:
+        t_ns = int(t_ns)
+        if self._times and t_ns <= self._times[-1]:
             self.reset()  # time went backwards (a new replay): start over
-        self._times.append(float(t_s))
+        self._times.append(t_ns)
         self._joints.append(np.asarray(joints_world, np.float64))
         self._conf.append(np.asarray(confidence, np.float64))
-        cut = t_s - (self.window + 1) / self.fps  # drop what the window can no longer reach
-        while len(self._times) > 2 and self._times[1] < cut:
+        reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps  # what the window can still reach
+        while len(self._times) > 2 and self._times[1] < t_ns - reach_ns:
             self._times.popleft(), self._joints.popleft(), self._conf.popleft()
-        win = sample_history(np.array(self._times), np.stack(self._joints), np.stack(self._conf), t_s,
+        times = np.array(self._times, np.int64)
+        # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
+        k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
+        if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
+            return None
+        self._emitted = int(times[k])
+        anchor_s = times[k] * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
+        win = sample_history(times * 1e-9, np.stack(self._joints), np.stack(self._conf), anchor_s,
                              to_world, self.window, self.fps)
         local = self.session.run(None, {self._input: win.features()[None]})[0][0].astype(np.float64)
-        return local @ to_world[:3, :3].T + to_world[:3, 3]
+        return RefinedSkeleton(t_ns=int(times[k]), joints=local @ to_world[:3, :3].T + to_world[:3, 3],
+                               confidence=self._conf[k])
 
 
 def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-__all__ = ["TemporalRefiner", "TemporalWindow", "sample_history", "to_person_frame", "feature_size",
-           "file_sha256", "DEFAULT_TEMPORAL_MODEL"]
+__all__ = ["TemporalRefiner", "RefinedSkeleton", "TemporalWindow", "sample_history", "to_person_frame", "feature_size",
+           "file_sha256", "temporal_model_path", "DEFAULT_TEMPORAL_MODEL"]
