@@ -79,6 +79,17 @@ def _cache_path(split: str, n_sequences: int, seed: int):
     return CACHE_DIR / f"seq_{split}_{n_sequences}_{seed}_{hashlib.sha1(key.encode()).hexdigest()[:8]}.npz"
 
 
+def _load(path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _largest_cached_prefix(split: str, n_sequences: int, seed: int) -> dict[str, np.ndarray] | None:
+    """The cached sequences of the same split and seed with the most sequences below n, if any."""
+    best = max((n for n in range(1, n_sequences) if _cache_path(split, n, seed).is_file()), default=None)
+    return None if best is None else _load(_cache_path(split, best, seed))
+
+
 def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
                        progress: bool = False) -> dict[str, np.ndarray]:
     """The sequences of a split (cached under .cache/skeleton_data).
@@ -90,12 +101,16 @@ def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int
         raise UserInputError(f"sequence data has splits train and val, not {split!r}")
     path = _cache_path(split, n_sequences, seed)
     if cache and path.is_file():
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n.
+        return _load(path)
+    # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n. Its plan
+    # for n jobs starts with its plan for fewer, so a cached smaller set is this one's prefix.
     jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1)[:n_sequences]
-    results = run_jobs(run_sequence_job, jobs, workers, f"sequences {split}" if progress else None)
+    prefix = _largest_cached_prefix(split, n_sequences, seed) if cache else None
+    done = len(prefix["found"]) if prefix else 0
+    results = run_jobs(run_sequence_job, jobs[done:], workers, f"sequences {split}" if progress else None)
     data = {k: np.stack([r[k] for r in results]) for k in results[0]}
+    if prefix:
+        data = {k: np.concatenate([prefix[k], data[k]]) for k in data}
     for key in ("clip", "body", "camera"):
         data[key] = np.array([getattr(j, key) for j in jobs])
     data["subject"] = np.array([j.subject for j in jobs], np.int32)

@@ -28,3 +28,38 @@ def test_two_replays_write_identical_files(session, tmp_path):
     assert files == sorted(p.name for p in outs[1].iterdir() if p.name != "stats.json")
     for name in files:
         assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+
+
+LAG2 = pytest.importorskip("models.skeleton.temporal").temporal_model_path(2)
+
+
+@pytest.mark.skipif(not LAG2.is_file(), reason="no shipped lag-2 temporal model")
+def test_lagging_replay_keeps_frame_times_scores_them_and_stays_deterministic(session, tmp_path):
+    import numpy as np
+
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"lag{k}"
+        assert main(["replay", str(session), "--out", str(out), "--avatar", "default", "--lag", "2", "--quiet"]) == 0
+        outs.append(out)
+    online = tmp_path / "online"
+    assert main(["replay", str(session), "--out", str(online), "--quiet"]) == 0
+    with np.load(outs[0] / "skeleton.npz") as lag, np.load(online / "skeleton.npz") as now:
+        t_lag, t_now = lag["t_ns"], now["t_ns"]
+        changed = not np.array_equal(lag["joints"], now["joints"][:-2])
+    # The same frames, stamped with their own times, but for the last two (they would come out
+    # after the session's end).
+    assert t_lag.tolist() == t_now[:-2].tolist() and changed
+    stats = json.loads((outs[0] / "stats.json").read_text())
+    assert stats["accuracy"]["frames_scored"] == len(t_now) - 2
+    assert stats["accuracy"]["mpjpe_mm"] < 80
+    for name in ("skeleton.npz", "avatar.npz", "avatar.bvh"):
+        assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
+
+
+def test_fused_replay_refuses_a_lag(session, tmp_path, capsys):
+    if not LAG2.is_file():
+        pytest.skip("no shipped lag-2 temporal model")
+    code = main(["replay", str(session), "--out", str(tmp_path / "f"), "--only", "fused", "--lag", "2", "--quiet"])
+    assert code == 2
+    assert "--lag 0" in capsys.readouterr().err

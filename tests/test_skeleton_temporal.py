@@ -62,3 +62,52 @@ def test_missing_temporal_model_is_a_model_error(tmp_path):
 
     with pytest.raises(ModelError, match="no temporal skeleton model"):
         SkeletonStage(temporal=tmp_path / "none.onnx")
+
+
+LAG2_MODEL = DEFAULT_TEMPORAL_MODEL.with_name("skeleton_temporal_lag2.onnx")
+
+
+def _feed(refiner, times_ns, rng):
+    out = []
+    for t in times_ns:
+        out.append(refiner(int(t), rng.normal(size=(22, 3)), rng.random(22), np.eye(4)))
+    return out
+
+
+@pytest.mark.skipif(not LAG2_MODEL.is_file(), reason="no shipped lag-2 temporal model")
+def test_lagging_model_estimates_an_earlier_frame_stamped_with_its_time():
+    from models.skeleton.temporal import TemporalRefiner
+
+    rng = np.random.default_rng(3)
+    refiner = TemporalRefiner(LAG2_MODEL)
+    assert refiner.lag == 2 and refiner.lag_s == pytest.approx(2 / 30)
+    t30 = 1_000_000_000 + np.round(np.arange(10) * 1e9 / 30).astype(np.int64)
+    got = _feed(refiner, t30, rng)
+    assert got[0] is None and got[1] is None  # frames 0 and 1 come out with frames 2 and 3
+    assert [g.t_ns for g in got[2:]] == t30[:-2].tolist()
+    # At 15 fps the 67 ms lag is one frame.
+    refiner.reset()
+    t15 = 1_000_000_000 + np.round(np.arange(6) * 1e9 / 15).astype(np.int64)
+    got = _feed(refiner, t15, rng)
+    assert got[0] is None and [g.t_ns for g in got[1:]] == t15[:-1].tolist()
+
+
+def test_online_model_estimates_the_newest_frame():
+    from models.skeleton.temporal import TemporalRefiner
+
+    rng = np.random.default_rng(4)
+    refiner = TemporalRefiner()
+    assert refiner.lag == 0
+    t = 1_000_000_000 + np.round(np.arange(5) * 1e9 / 30).astype(np.int64)
+    got = _feed(refiner, t, rng)
+    assert [g.t_ns for g in got] == t.tolist()
+
+
+def test_unknown_lag_is_a_user_error():
+    from live.errors import UserInputError
+    from models.skeleton.runtime import SkeletonStage
+
+    with pytest.raises(UserInputError, match="lag 7"):
+        SkeletonStage(lag=7)
+    with pytest.raises(UserInputError, match="needs the temporal model"):
+        SkeletonStage(temporal=False, lag=2)
