@@ -47,11 +47,14 @@ def test_lagging_replay_keeps_frame_times_scores_them_and_stays_deterministic(se
     with np.load(outs[0] / "skeleton.npz") as lag, np.load(online / "skeleton.npz") as now:
         t_lag, t_now = lag["t_ns"], now["t_ns"]
         changed = not np.array_equal(lag["joints"], now["joints"][:-2])
-    # The same frames, stamped with their own times, but for the last two (they would come out
-    # after the session's end).
-    assert t_lag.tolist() == t_now[:-2].tolist() and changed
+    # Frames of the online run, stamped with their own times, smoothed; not the last ones (they
+    # would come out after the session's end); after a gap in the finder's frames the lagging
+    # model goes on from the newest frame old enough, as live.
+    assert set(t_lag.tolist()) <= set(t_now.tolist()) and np.all(np.diff(t_lag) > 0) and changed
+    assert t_lag[-1] < t_now[-1] and len(t_lag) >= len(t_now) - 4
     stats = json.loads((outs[0] / "stats.json").read_text())
-    assert stats["accuracy"]["frames_scored"] == len(t_now) - 2
+    assert stats["accuracy"]["frames_scored"] == len(t_lag)
+    assert stats["skeleton_lag_ms"] == pytest.approx(66.7)
     assert stats["accuracy"]["mpjpe_mm"] < 80
     for name in ("skeleton.npz", "avatar.npz", "avatar.bvh"):
         assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
