@@ -372,17 +372,27 @@ class PersonFinder:
         if inside.sum() < min_points:
             return None
         i, j = np.where(inside, i, 0), np.where(inside, j, 0)
-        grid = np.zeros((cells, cells), np.uint8)
         # Only cells with points well above the floor seed the clusters: stereo noise lifts the
         # far floor by several cm, and low noisy floor cells would join the person to the floor.
         # Low points (feet) still join the cluster of the cell they fall in after the dilation.
         tall = inside & (pts[:, 1] > cfg.seed_height_m)
-        grid[j[tall], i[tall]] = 1
+        if not tall.any():
+            return None
+        # Label only the occupied part of the grid (a room fills a fraction of the 12 m square),
+        # with a one-cell margin for the dilation: the components, their raster order and so
+        # their labels are those of the whole grid.
+        jt, it = j[tall], i[tall]
+        j0, j1 = max(int(jt.min()) - 1, 0), min(int(jt.max()) + 2, cells)
+        i0, i1 = max(int(it.min()) - 1, 0), min(int(it.max()) + 2, cells)
+        crop = np.zeros((j1 - j0, i1 - i0), np.uint8)
+        crop[jt - j0, it - i0] = 1
         # Close one-cell gaps (stereo holes) so a person is one component.
-        grid = cv2.dilate(grid, np.ones((3, 3), np.uint8))
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(grid, connectivity=8)
+        crop = cv2.dilate(crop, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        n, crop_labels, stats, _ = cv2.connectedComponentsWithStats(crop, connectivity=8)
         if n <= 1:
             return None
+        labels = np.zeros((cells, cells), crop_labels.dtype)
+        labels[j0:j1, i0:i1] = crop_labels
         point_label = np.where(inside, labels[j, i], 0)
         counts = np.bincount(point_label, minlength=n)
         best, best_score = None, 0.0
