@@ -18,6 +18,8 @@ from live import __version__
 from live.errors import LivecapError
 
 EXIT_USER_ERROR = 2
+LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother temporal model, "
+            "each skeleton 67 ms later with ~40 %% less jitter")
 
 
 def _add_replay_options(p: argparse.ArgumentParser) -> None:
@@ -33,8 +35,7 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
     p.add_argument("--hand-ik", action="store_true", help="hands reach where the performer's hands reach (scaled)")
     p.add_argument("--model", type=Path, default=None, help="skeleton model (.onnx; default: the shipped one)")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads for the skeleton model (default 1)")
-    p.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother "
-                   "temporal model, each skeleton 67 ms later with ~40 %% less jitter")
+    p.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
     p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
                    "(e.g. 127.0.0.1:39539); off unless given")
     p.add_argument("--vmc-rate", type=float, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
@@ -140,8 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--model", type=Path, default=None, help="model to evaluate (default: the shipped one)")
     e.add_argument("--compare", choices=["baseline"], default=None, help="also evaluate the reference PointNet")
     e.add_argument("--threads", type=int, default=1)
-    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother "
-                   "temporal model, each skeleton 67 ms later with ~40 %% less jitter")
+    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
     e.add_argument("--motion", required=True, help="a BVH clip")
@@ -151,8 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start from ground-truth skeletons or run the whole chain from the virtual camera")
     e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
     e.add_argument("--max-frames", type=int, default=None)
-    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="with --from depth: " + "skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother "
-                   "temporal model, each skeleton 67 ms later with ~40 %% less jitter")
+    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
