@@ -133,3 +133,21 @@ def test_joint_confidence_support():
     pts = np.random.default_rng(0).normal(JOINTS[15], 0.03, (50, 3))
     conf = joint_confidence(JOINTS, pts)
     assert conf[15] == pytest.approx(1.0) and conf[7] == 0.0 and conf.dtype == np.float32
+
+
+def test_fast_helpers_match_numpy():
+    from models.skeleton.preprocess import _is_identity, _median
+
+    rng = np.random.default_rng(1)
+    for n in (1, 2, 7, 1000, 1001):
+        x = rng.normal(size=n).astype(np.float32)
+        assert _median(x) == float(np.median(x))
+    for m in (np.eye(4), np.eye(4) + 1e-9, np.eye(4) * (1 + 2e-5), np.diag([1.0, 1, 1, 0.5])):
+        assert _is_identity(m) == np.allclose(m, np.eye(4))
+
+
+def test_joint_confidence_counts_points_within_the_radius():
+    rng = np.random.default_rng(2)
+    pts = rng.normal(JOINTS[12], 0.15, (256, 3)).astype(np.float32)
+    near = (np.linalg.norm(pts[None].astype(np.float64) - JOINTS[:, None], axis=-1) < 0.12).sum(1)
+    assert np.array_equal(joint_confidence(JOINTS, pts), np.clip(near / 6.0, 0, 1).astype(np.float32))

@@ -89,3 +89,58 @@ def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
     stage = SkeletonStage(temporal=tmp_path / "skeleton_temporal.onnx")
     assert stage.temporal is not None and stage.temporal.window == card["window"]
     assert stage.use_filter is False  # the temporal model replaces One Euro by default
+
+
+def _trained_looking_voting_net():
+    """A VotingPointNet with a refine stage and non-trivial BatchNorm statistics, in eval mode."""
+    from models.train.skeleton_nets import VotingPointNet
+
+    torch.manual_seed(0)
+    net = VotingPointNet(refine_k=8, refine_width=16)
+    for m in net.modules():
+        if isinstance(m, torch.nn.BatchNorm1d):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.2, 0.2)
+    return net.eval()
+
+
+def _clouds(n=3, points=64):
+    from models.train.reexport_skeleton import sample_clouds
+
+    return torch.from_numpy(sample_clouds(n, points))
+
+
+def test_deployed_voting_net_is_the_same_function():
+    from models.train.skeleton_nets import DeployedVotingPointNet
+
+    net = _trained_looking_voting_net()
+    x = _clouds()
+    with torch.no_grad():
+        assert torch.allclose(DeployedVotingPointNet(net, 64)(x), net(x), atol=1e-5)
+
+
+def test_reexport_rebuilds_the_training_graph_and_moves_temporal_cards(tmp_path):
+    from models.skeleton.temporal import file_sha256
+    from models.train.reexport_skeleton import main, run_onnx
+
+    net = _trained_looking_voting_net()
+    path = tmp_path / "skeleton.onnx"
+    example = _clouds(1)
+    torch.onnx.export(net, (example,), str(path), input_names=["points"], output_names=["joints"],
+                      dynamic_axes={"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}},
+                      opset_version=17, dynamo=False)  # the training-form graph of earlier exports
+    card = {"architecture": "VotingPointNet", "num_points": 64, "input": {"shape": ["batch", "num_points", 3]},
+            "recipe": {"net": {"refine_k": 8, "refine_width": 16}}}
+    path.with_suffix(".json").write_text(json.dumps(card))
+    old_sha = file_sha256(path)
+    (tmp_path / "skeleton_temporal.json").write_text(json.dumps({"regressor_sha256": old_sha}))
+    x = _clouds(4).numpy()
+    before = run_onnx(path, x)
+    assert main(["--model", str(path)]) < 1e-4
+    assert np.abs(run_onnx(path, x) - before).max() < 1e-4
+    assert json.loads((tmp_path / "skeleton_temporal.json").read_text())["regressor_sha256"] == file_sha256(path)
+    assert json.loads(path.with_suffix(".json").read_text())["export"]["form"] == "DeployedVotingPointNet"
+    with pytest.raises(SystemExit, match="no re-export"):
+        main(["--model", str(path)])  # already deployed

@@ -124,7 +124,10 @@ def joint_confidence(joints: np.ndarray, points: np.ndarray, radius_m: float = 0
                      full_support: int = 6) -> np.ndarray:
     """(22,) confidence in [0, 1]: the share of ``full_support`` sample points within
     ``radius_m`` of each joint (joints of body parts the camera does not see get ~0)."""
-    d2 = ((np.asarray(points)[None, :, :] - np.asarray(joints)[:, None, :]) ** 2).sum(-1)
+    p = np.asarray(points, np.float64)
+    j = np.asarray(joints, np.float64)
+    # |p - j|^2 = |p|^2 - 2 p.j + |j|^2: one (22, N) matmul instead of a (22, N, 3) difference.
+    d2 = (p * p).sum(1)[None, :] - 2.0 * (j @ p.T) + (j * j).sum(1)[:, None]
     support = (d2 < radius_m * radius_m).sum(axis=1)
     return np.clip(support / float(full_support), 0.0, 1.0).astype(np.float32)
 

@@ -22,7 +22,6 @@ frames' timestamps; the first frames of a take, and the last L of a replay, get 
 from __future__ import annotations
 
 import hashlib
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,17 +72,19 @@ def sample_history(times_s: np.ndarray, joints_world: np.ndarray, confidence: np
     linearly interpolated between observations, clamped to the first one before it."""
     t = np.asarray(times_s, np.float64)
     q = t_now_s - np.arange(window) / fps
-    hi = np.clip(np.searchsorted(t, q, side="left"), 0, len(t) - 1)
-    lo = np.maximum(hi - 1, 0)
-    span = t[hi] - t[lo]
-    w = np.where(span > 0, (q - t[lo]) / np.where(span > 0, span, 1.0), 1.0)
-    w = np.clip(w, 0.0, 1.0)
-    w = np.where(q <= t[0], 0.0, w)[:, None, None]
-    lo = np.where(q <= t[0], 0, lo)
-    j = (1.0 - w) * joints_world[lo] + w * joints_world[hi]
-    c = (1.0 - w[..., 0]) * confidence[lo] + w[..., 0] * confidence[hi]
-    nearest = np.minimum(np.abs(t[lo] - q), np.abs(t[hi] - q))
-    observed = (nearest < 0.5 / fps).astype(np.float32)
+    hi = np.searchsorted(t, q, side="left")
+    np.clip(hi, 0, len(t) - 1, out=hi)
+    before = q <= t[0]
+    lo = np.where(before, 0, np.maximum(hi - 1, 0))
+    t_lo, t_hi = t[lo], t[hi]
+    span = t_hi - t_lo
+    # Interpolation weight of the later observation (0 before the first one: repeat it).
+    w = np.clip((q - t_lo) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    w[(span <= 0) & ~before] = 1.0
+    w[before] = 0.0
+    j = (1.0 - w)[:, None, None] * joints_world[lo] + w[:, None, None] * joints_world[hi]
+    c = (1.0 - w)[:, None] * confidence[lo] + w[:, None] * confidence[hi]
+    observed = (np.minimum(np.abs(t_lo - q), np.abs(t_hi - q)) < 0.5 / fps).astype(np.float32)
     return TemporalWindow(joints=to_person_frame(j, to_world), confidence=c, observed=observed)
 
 
@@ -129,12 +130,35 @@ class TemporalRefiner:
         return self.lag / self.fps
 
     def reset(self) -> None:
-        # Enough history for the window, plus slack for faster cameras and dropped frames.
+        # History as preallocated arrays, oldest first: enough for the window, plus slack for
+        # faster cameras and dropped frames (the oldest entries go first when it is full).
         size = 8 * (self.window + self.lag)
-        self._times: deque[int] = deque(maxlen=size)
-        self._joints: deque[np.ndarray] = deque(maxlen=size)
-        self._conf: deque[np.ndarray] = deque(maxlen=size)
+        self._times = np.zeros(size, np.int64)
+        self._joints = np.zeros((size, NUM_JOINTS, 3))
+        self._conf = np.zeros((size, NUM_JOINTS))
+        self._count = 0
         self._emitted: int | None = None
+
+    def _append(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray) -> None:
+        """Add an observation; drop what the window can no longer reach (all but one entry older
+        than that, at least two kept) and, when full, the oldest."""
+        n = self._count
+        if n == len(self._times):
+            self._drop(1)
+            n -= 1
+        self._times[n], self._joints[n], self._conf[n] = t_ns, joints_world, confidence
+        n = self._count = n + 1
+        reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps
+        if n > 2:
+            stale = int(np.searchsorted(self._times[1:n], t_ns - reach_ns, side="left"))
+            self._drop(min(stale, n - 2))
+
+    def _drop(self, k: int) -> None:
+        if k > 0:
+            n = self._count
+            for a in (self._times, self._joints, self._conf):
+                a[:n - k] = a[k:n]
+            self._count = n - k
 
     def matches(self, regressor_path: Path) -> bool:
         """Whether this model was trained on the outputs of that regressor file."""
@@ -144,26 +168,21 @@ class TemporalRefiner:
     def __call__(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray,
                  to_world: np.ndarray) -> RefinedSkeleton | None:
         t_ns = int(t_ns)
-        if self._times and t_ns <= self._times[-1]:
+        if self._count and t_ns <= self._times[self._count - 1]:
             self.reset()  # time went backwards (a new replay): start over
-        self._times.append(t_ns)
-        self._joints.append(np.asarray(joints_world, np.float64))
-        self._conf.append(np.asarray(confidence, np.float64))
-        reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps  # what the window can still reach
-        while len(self._times) > 2 and self._times[1] < t_ns - reach_ns:
-            self._times.popleft(), self._joints.popleft(), self._conf.popleft()
-        times = np.array(self._times, np.int64)
+        self._append(t_ns, joints_world, confidence)
+        n = self._count
+        times = self._times[:n]
         # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
         k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
         self._emitted = int(times[k])
         anchor_s = times[k] * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
-        win = sample_history(times * 1e-9, np.stack(self._joints), np.stack(self._conf), anchor_s,
-                             to_world, self.window, self.fps)
+        win = sample_history(times * 1e-9, self._joints[:n], self._conf[:n], anchor_s, to_world, self.window, self.fps)
         local = self.session.run(None, {self._input: win.features()[None]})[0][0].astype(np.float64)
         return RefinedSkeleton(t_ns=int(times[k]), joints=local @ to_world[:3, :3].T + to_world[:3, 3],
-                               confidence=self._conf[k])
+                               confidence=self._conf[k].copy())
 
 
 def file_sha256(path: Path) -> str:

@@ -172,6 +172,81 @@ class VotingPointNet(nn.Module):
         return out
 
 
+def _folded(layer: _PointLinear) -> tuple[torch.Tensor, torch.Tensor]:
+    """(weight C_in x C_out, bias C_out) of Linear + eval-mode BatchNorm as one affine map."""
+    bn = layer.norm
+    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    return layer.linear.weight.t() * scale, bn.bias - bn.running_mean * scale
+
+
+class DeployedVotingPointNet(nn.Module):
+    """A trained ``VotingPointNet`` in the form that is exported: the same function (to float
+    rounding), written for a small, fast ONNX graph. BatchNorm is folded into the matmuls; points
+    are rows of one (B*N, C) matrix so every layer is one Gemm; the point count is a constant,
+    so no shape arithmetic is traced; the refine stage's k-nearest search ranks |p|^2 - 2 j.p (one
+    matmul, not a B x J x N x 3 difference) and gathers rows of the flattened features. This
+    halves the graph's nodes and most of onnxruntime's per-node overhead (benchmarks/bench_skeleton.py)."""
+
+    def __init__(self, net: VotingPointNet, num_points: int):
+        super().__init__()
+        if len(net.refine) > 1:
+            raise ValueError("the deployed form handles one refine stage")
+        self.n, self.j = int(num_points), net.num_joints
+        with torch.no_grad():
+            self.local = [_folded(layer) for layer in net.local]
+            self.rounds = []
+            for to_g, mix_g, mix in zip(net.to_global, net.mix_global, net.mix):
+                w_mix, b_mix = _folded(mix)
+                scale = mix.norm.weight / torch.sqrt(mix.norm.running_var + mix.norm.eps)
+                # BN(f W + g M + m) = f (W s) + g (M s) + (m s + t): the global term takes the scale.
+                self.rounds.append((_folded(to_g), (mix_g.weight.t() * scale, mix_g.bias * scale + b_mix), w_mix))
+            # head: per point and joint a weight logit and an offset, (w, o) = f H + h. The offset
+            # part of the joint, sum_n softmax_n(w_nj) o_nj, is linear in f: (sum_n s_nj f_n) H_j + h_j.
+            w_head = net.head.weight.reshape(self.j, 4, -1)  # J x 4 x W
+            b_head = net.head.bias.reshape(self.j, 4)
+            self.logit = (w_head[:, 0].t().clone(), b_head[:, 0].clone())  # W x J, J
+            self.offset = (w_head[:, 1:].permute(0, 2, 1).clone(), b_head[:, 1:].clone())  # J x W x 3, J x 3
+            self.refine = None
+            if len(net.refine):
+                r = net.refine[0]
+                self.refine = dict(k=r.k, feature=(r.feature.weight.t().clone(), r.feature.bias.clone()),
+                                   offset=r.offset.weight.t().clone(), code=r.joint_code.clone(),
+                                   mlp1=(r.mlp[1].weight.t().clone(), r.mlp[1].bias.clone()),
+                                   mlp2=(r.mlp[3].weight.t().clone(), r.mlp[3].bias.clone()))
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        n, j = self.n, self.j
+        p = points.reshape(-1, 3)  # (B*N, 3)
+        f = p
+        for w, b in self.local:
+            f = torch.relu(torch.addmm(b, f, w))
+        for (w_g, b_g), (w_mg, b_mg), w_mix in self.rounds:
+            g = torch.relu(torch.addmm(b_g, f, w_g)).reshape(-1, n, w_g.shape[1]).amax(dim=1)  # B x G
+            mixed = torch.addmm(b_mg, g, w_mg).unsqueeze(1)  # B x 1 x W
+            f = torch.relu((f @ w_mix).reshape(-1, n, w_mix.shape[1]) + mixed).reshape(-1, w_mix.shape[1])
+        weights = torch.softmax(torch.addmm(self.logit[1], f, self.logit[0]).reshape(-1, n, j), dim=1)  # B x N x J
+        pts = points.reshape(-1, n, 3)
+        pooled = weights.transpose(1, 2) @ torch.cat([pts, f.reshape(-1, n, f.shape[1])], dim=2)  # B x J x (3+W)
+        offsets = (pooled[..., 3:].unsqueeze(2) @ self.offset[0]).squeeze(2) + self.offset[1]  # B x J x 3
+        joints = pooled[..., :3] + 0.5 * offsets
+        if self.refine is None:
+            return joints
+        r = self.refine
+        k = r["k"]
+        # k nearest points of each joint: rank |p|^2 - 2 j.p (|j|^2 is the same along a row).
+        rank = (pts * pts).sum(-1).unsqueeze(1) - 2.0 * (joints @ pts.transpose(1, 2))  # B x J x N
+        idx = torch.topk(rank, k, dim=2, largest=False).indices  # B x J x K
+        rows = (idx + (torch.arange(idx.shape[0]) * n).reshape(-1, 1, 1)).reshape(-1)
+        feat = torch.addmm(r["feature"][1], f, r["feature"][0]) + p @ r["offset"]  # (B*N, R)
+        near = p[rows].reshape(-1, j, k, 3)
+        # feature + offset(near - joint) + code = gathered (feature + offset(p)) - offset(joint) + code
+        h = feat[rows].reshape(-1, j, k, feat.shape[1]) + (r["code"] - joints @ r["offset"]).unsqueeze(2)
+        h = torch.relu(torch.relu(h) @ r["mlp1"][0] + r["mlp1"][1])
+        out = h @ r["mlp2"][0] + r["mlp2"][1]  # B x J x K x 4
+        w = torch.softmax(out[..., 0], dim=2)
+        return ((near + 0.25 * out[..., 1:]) * w.unsqueeze(-1)).sum(dim=2)
+
+
 MODELS = {"ours": VotingPointNet, "baseline": ReferencePointNet}
 
 
@@ -188,10 +263,14 @@ def count_parameters(model: nn.Module) -> int:
 
 def export_onnx(model: nn.Module, path: str, num_points: int, opset: int = 17) -> None:
     """Write ``model`` (eval mode) as ONNX: input "points" (B, N, 3) float32, output "joints"
-    (B, 22, 3); batch and point count are dynamic."""
+    (B, 22, 3); the batch is dynamic. ``VotingPointNet`` goes out in its deployed form
+    (``DeployedVotingPointNet``, N fixed at ``num_points``); the reference keeps its own graph
+    (dynamic N), as published."""
     model = model.eval()
     example = torch.zeros(1, num_points, 3)
     example[0, :, 1] = torch.linspace(0.0, 1.7, num_points)
+    axes = {"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}}
+    if isinstance(model, VotingPointNet):
+        model, axes = DeployedVotingPointNet(model, num_points).eval(), {"points": {0: "batch"}, "joints": {0: "batch"}}
     torch.onnx.export(model, (example,), path, input_names=["points"], output_names=["joints"],
-                      dynamic_axes={"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}},
-                      opset_version=opset, dynamo=False)
+                      dynamic_axes=axes, opset_version=opset, dynamo=False)
