@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from live.errors import UserInputError
-from live.retarget.ik import axis_angle_matrix, cross, dot, normalize, rotation_between
+from live.retarget.ik import axis_angle_matrix, cross, dot, normalize, rotation_between_units
 from live.rotations import matrix_to_quat
 from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 
@@ -71,8 +71,9 @@ def frame_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Orthonormal frames (..., 3, 3) with columns (a, b orthogonalised, a x b) from (..., 3)."""
     e1 = normalize(a)
     e3 = normalize(cross(e1, b))
-    e2 = cross(e3, e1)
-    return np.stack([e1, e2, e3], axis=-1)
+    out = np.empty(e1.shape + (3,))
+    out[..., 0], out[..., 1], out[..., 2] = e1, cross(e3, e1), e3
+    return out
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,7 @@ class RestInfo:
     offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
     frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
     swing_dirs: np.ndarray  # (22, 3) rest unit direction to the only child (zero elsewhere)
+    swing_units: np.ndarray  # swing_dirs normalised again, as rotation_between would per frame
     limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
     limb_hinges: np.ndarray  # (4, 3) rest hinge axis h, orthogonal to the upper bone
     limb_binormals: np.ndarray  # (4, 3) upper bone x h
@@ -104,14 +106,16 @@ class RestInfo:
         hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
         lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
-        return cls(rest, rest_offsets(rest), frames, swing, dirs, hinges, cross(dirs, hinges), dot(lower, hinges))
+        return cls(rest, rest_offsets(rest), frames, swing, normalize(swing), dirs, hinges, cross(dirs, hinges),
+                   dot(lower, hinges))
 
 
-def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray):
+def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray,
+                limb_joints: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
     """Twist angles about the limbs' upper bones that make their middle joints hinges.
 
     joints (N, 22, 3); swing_glob (N, K, 3, 3): the upper bones' global rotations without twist;
-    ks (K,) limb numbers. Returns (angle (N, K), weight (N, K) in [0, 1], 0 where the limb is too
+    ks (K,) limb numbers (limb_joints: their (root, middle, end) joints, when known). Returns (angle (N, K), weight (N, K) in [0, 1], 0 where the limb is too
     straight for its plane to be known).
 
     A hinge about h keeps the lower bone's component along h at its rest value c = e0 . h. With
@@ -120,7 +124,7 @@ def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: 
     r = |(x, y)| (the + branch bends the hinge the natural way). This stays exact for a rest limb
     that is not perfectly straight, where the plain limb-plane normal is off by many degrees.
     """
-    r, m, e = (_LIMB_IDX[ks, i] for i in range(3))
+    r, m, e = _LIMB_IDX[ks].T if limb_joints is None else limb_joints
     upper = joints[:, m] - joints[:, r]
     lower = normalize(joints[:, e] - joints[:, m])
     bend = np.arccos(np.clip(dot(normalize(upper), lower), -1.0, 1.0))
@@ -137,15 +141,29 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def _plan() -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray], ...]:
-    """Per tree level: swing joints, their parents, their children, limb columns, limb numbers."""
+@dataclass(frozen=True)
+class _LevelPlan:
+    """What ``solve_globals`` does at one tree level (index arrays built once, not per frame)."""
+
+    framed: tuple[int, ...]  # joints posed from two child directions (_FRAMED)
+    js: np.ndarray  # swing joints
+    ps: np.ndarray  # their parents
+    cs: np.ndarray  # their children
+    sel: np.ndarray  # columns of js that are limb roots
+    ks: np.ndarray  # their limb numbers
+    limb_joints: tuple[np.ndarray, np.ndarray, np.ndarray]  # (root, middle, end) of those limbs
+
+
+def _plan() -> tuple[_LevelPlan, ...]:
     plan = []
     for level in LEVELS:
         js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
         ks = np.array([_LIMB_OF.get(int(j), -1) for j in js], dtype=np.int64)
         sel = np.flatnonzero(ks >= 0)
         cs = np.array([CHILDREN[j][0] for j in js], dtype=np.int64)
-        plan.append((js, PARENTS[js].astype(np.int64), cs, sel, ks[sel]))
+        limb = _LIMB_IDX[ks[sel]]
+        plan.append(_LevelPlan(tuple(int(j) for j in _FRAMED if j in level), js, PARENTS[js].astype(np.int64), cs,
+                               sel, ks[sel], (limb[:, 0], limb[:, 1], limb[:, 2])))
     return tuple(plan)
 
 
@@ -164,19 +182,19 @@ def solve_globals(
     n = joints.shape[0]
     glob = np.empty((n, NUM_JOINTS, 3, 3))
     prev = np.zeros(len(LIMBS)) if twist is None else np.array(twist, dtype=np.float64)
-    for level, (js, ps, cs, sel, ks) in zip(LEVELS, _PLAN):
-        for j in _FRAMED:
-            if j in level:
-                a0, a1, b0, b1 = _FRAMED[j]
-                f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
-                glob[:, j] = f @ info.frames[j].T
+    for step in _PLAN:
+        for j in step.framed:
+            a0, a1, b0, b1 = _FRAMED[j]
+            f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
+            glob[:, j] = f @ info.frames[j].T
+        js, ps, cs, sel, ks = step.js, step.ps, step.cs, step.sel, step.ks
         if not len(js):
             continue
         gp = glob[:, ps]
         d_loc = np.einsum("nkji,nkj->nki", gp, joints[:, cs] - joints[:, js])
-        g = gp @ rotation_between(info.swing_dirs[js], d_loc)
+        g = gp @ rotation_between_units(info.swing_units[js], d_loc)
         if len(sel):
-            angle, weight = _limb_twist(joints, g[:, sel], info, ks)
+            angle, weight = _limb_twist(joints, g[:, sel], info, ks, step.limb_joints)
             # Sequential filter: the plane's twist where the limb is bent, the previous frame's
             # where it is straight (so batch and frame-by-frame agree).
             out = np.empty_like(angle)

@@ -16,6 +16,7 @@ _EPS = 1e-12
 _LC = np.zeros((3, 3, 3))
 _LC[0, 1, 2] = _LC[1, 2, 0] = _LC[2, 0, 1] = 1.0
 _LC[0, 2, 1] = _LC[2, 1, 0] = _LC[1, 0, 2] = -1.0
+_I3 = np.eye(3)
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -42,7 +43,7 @@ def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Unit axes (..., 3) and angles (...) in radians -> rotation matrices (..., 3, 3) (Rodrigues)."""
     a = np.asarray(angle)[..., None, None]
     c = np.cos(a)
-    return c * np.eye(3) + np.sin(a) * skew(axis) + (1.0 - c) * (axis[..., :, None] * axis[..., None, :])
+    return c * _I3 + np.sin(a) * skew(axis) + (1.0 - c) * (axis[..., :, None] * axis[..., None, :])
 
 
 def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -51,15 +52,19 @@ def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     Same rotation as ``live.rotations.quat_between``; opposite directions turn by pi about an axis
     orthogonal to u.
     """
-    u = normalize(np.asarray(u, dtype=np.float64))
-    v = normalize(np.asarray(v, dtype=np.float64))
+    return rotation_between_units(normalize(np.asarray(u, dtype=np.float64)), np.asarray(v, dtype=np.float64))
+
+
+def rotation_between_units(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``rotation_between`` for u already normalised (e.g. rest directions normalised once)."""
+    v = normalize(v)
     c = cross(u, v)
     d = dot(u, v)
     opposite = d < -1.0 + 1e-9
     # Rodrigues with sin = |c|, cos = d: R = d I + [c]x + c c^T / (1 + d).
     scale = 1.0 / np.where(opposite, 1.0, 1.0 + d)
-    r = d[..., None, None] * np.eye(3) + skew(c) + (c[..., :, None] * c[..., None, :]) * scale[..., None, None]
-    if np.any(opposite):
+    r = d[..., None, None] * _I3 + skew(c) + (c[..., :, None] * c[..., None, :]) * scale[..., None, None]
+    if opposite.any():
         ortho = cross(u, np.array([1.0, 0.0, 0.0]))
         small = np.linalg.norm(ortho, axis=-1) < 1e-6
         ortho = normalize(np.where(small[..., None], cross(u, np.array([0.0, 1.0, 0.0])), ortho))
