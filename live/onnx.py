@@ -22,6 +22,11 @@ def open_session(path: Path, *, threads: int = 1, what: str = "model", retrain: 
     opts.intra_op_num_threads = max(int(threads), 1)
     opts.inter_op_num_threads = 1
     opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    if opts.intra_op_num_threads > 1:
+        # Idle pool threads spin by default: with two sessions per frame (regressor, temporal
+        # model) on two cores, each one's spinning threads starve the other (the skeleton stage
+        # at threads=2 took 2.6x longer than at 1, benchmarks/bench_skeleton.py --threads 2).
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
     try:
         session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
     except Exception as exc:  # onnxruntime raises its own types for unreadable graphs

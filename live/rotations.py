@@ -64,40 +64,63 @@ def quat_canonical(q: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def _quat_to_matrix_map() -> np.ndarray:
+    """(16, 9): the rotation matrix (row-major) of a unit quaternion is linear in the products
+    q_a q_b (flattened 4 x 4 outer product): R = I + (q q^T) C, one matmul instead of a dozen
+    elementwise ops per entry on the small batches of a live frame."""
+    c = np.zeros((4, 4, 9))
+    w, x, y, z = range(4)
+    for entry, terms in enumerate([
+        [(y, y, -2), (z, z, -2)], [(x, y, 2), (w, z, -2)], [(x, z, 2), (w, y, 2)],
+        [(x, y, 2), (w, z, 2)], [(x, x, -2), (z, z, -2)], [(y, z, 2), (w, x, -2)],
+        [(x, z, 2), (w, y, -2)], [(y, z, 2), (w, x, 2)], [(x, x, -2), (y, y, -2)],
+    ]):
+        for a, b, k in terms:
+            c[a, b, entry] += k
+    return c.reshape(16, 9)
+
+
+def _matrix_to_quat_map() -> tuple[np.ndarray, np.ndarray]:
+    """(9, 16) and (16,): Shepperd's four candidate (unnormalised) quaternions, each 4 x 4 row
+    one candidate, as one affine map of the flattened matrix; candidate i's pivot is entry (i, i)."""
+    m = lambda r, c: 3 * r + c  # noqa: E731
+    rows = [  # candidate -> component -> [(matrix entry, sign)], plus the constant 1 on pivots
+        [[(m(0, 0), 1), (m(1, 1), 1), (m(2, 2), 1)], [(m(2, 1), 1), (m(1, 2), -1)],
+         [(m(0, 2), 1), (m(2, 0), -1)], [(m(1, 0), 1), (m(0, 1), -1)]],
+        [[(m(2, 1), 1), (m(1, 2), -1)], [(m(0, 0), 1), (m(1, 1), -1), (m(2, 2), -1)],
+         [(m(0, 1), 1), (m(1, 0), 1)], [(m(0, 2), 1), (m(2, 0), 1)]],
+        [[(m(0, 2), 1), (m(2, 0), -1)], [(m(0, 1), 1), (m(1, 0), 1)],
+         [(m(0, 0), -1), (m(1, 1), 1), (m(2, 2), -1)], [(m(1, 2), 1), (m(2, 1), 1)]],
+        [[(m(1, 0), 1), (m(0, 1), -1)], [(m(0, 2), 1), (m(2, 0), 1)],
+         [(m(1, 2), 1), (m(2, 1), 1)], [(m(0, 0), -1), (m(1, 1), -1), (m(2, 2), 1)]],
+    ]
+    k = np.zeros((9, 4, 4))
+    for cand, comps in enumerate(rows):
+        for comp, terms in enumerate(comps):
+            for entry, sign in terms:
+                k[entry, cand, comp] = sign
+    return k.reshape(9, 16), np.eye(4).reshape(16)
+
+
+_Q2M = _quat_to_matrix_map()
+_I3_FLAT = np.eye(3).reshape(9)
+_M2Q, _M2Q_ONE = _matrix_to_quat_map()
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     q = quat_normalize(q)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    m = np.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        axis=-1,
-    )
-    return m.reshape(q.shape[:-1] + (3, 3))
+    outer = (q[..., :, None] * q[..., None, :]).reshape(q.shape[:-1] + (16,))
+    return (outer @ _Q2M + _I3_FLAT).reshape(q.shape[:-1] + (3, 3))
 
 
 def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) -> unit quaternions with w >= 0 (Shepperd's method)."""
     m = np.asarray(m, dtype=np.float64)
     batch = m.shape[:-2]
-    m = m.reshape(-1, 3, 3)
-    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
     # Four candidate formulas; pick per row the one with the largest, best-conditioned pivot.
-    cands = np.stack(
-        [
-            np.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
-            np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0]], -1),
-            np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2], m[:, 1, 2] + m[:, 2, 1]], -1),
-            np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1], 1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1),
-        ],
-        axis=1,
-    )
-    pivots = np.stack([1 + tr, 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
-                       1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2], 1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1)
-    best = np.argmax(pivots, axis=1)
-    q = cands[np.arange(len(m)), best]
+    cands = (m.reshape(-1, 9) @ _M2Q + _M2Q_ONE).reshape(-1, 4, 4)
+    best = np.argmax(cands.reshape(-1, 16)[:, ::5], axis=1)  # the pivots: entries (i, i)
+    q = cands[np.arange(len(cands)), best]
     q = quat_canonical(quat_normalize(q))
     return q.reshape(batch + (4,))
 

@@ -1,9 +1,10 @@
 """Measure the depth skeleton stage's error as a noise model for training the retargeter.
 
-    python -m models.train.measure_skeleton_noise [--frames 240] [--model PATH]
+    python -m models.train.measure_skeleton_noise [--frames 240] [--model PATH] [--lag L]
 
 Training clips on training bodies (never the held-out ones), virtual OAK-D, the shipped skeleton
-stage with its default filter. Prints, per joint, the error's standard deviation per axis (mm,
+stage with its default filter (and its temporal model of lag L, default 0: the online stage
+that live puppeteering runs). Prints, per joint, the error's standard deviation per axis (mm,
 about its mean: the bias is not noise), its frame-to-frame correlation and its acceleration error;
 ``models.train.train_retarget.DEPTH_NOISE_MM`` / ``DEPTH_NOISE_CORR`` hold the rounded figures.
 """
@@ -39,6 +40,7 @@ def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--model", default=None, help="skeleton .onnx (default: the shipped one)")
+    ap.add_argument("--lag", type=int, default=0, help="temporal model lag in frames (default 0)")
     args = ap.parse_args(argv)
     held_out = {c.file for c in list_clips() if c.subject in VAL_SUBJECTS}
     train_bodies = set(split_bodies(list_presets(), "train"))
@@ -47,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
         assert clip not in held_out and body_name in train_bodies
         motion = prepare_motion(BVH_DIR / clip, 30.0, args.frames)
         body = load_body(body_name)
-        pred, found = depth_skeletons(motion, body, seed=k, skeleton_model=args.model)
+        pred, found = depth_skeletons(motion, body, seed=k, skeleton_model=args.model, lag=args.lag)
         _, truth = _on_body(motion, body.rest_joints)
         errors.append((pred - truth)[found])
     stats = error_statistics(errors)
