@@ -57,7 +57,7 @@ def bench_speed(frames: int) -> None:
     med, p95 = _time_steps(lambda i: rt.step(rot[i], root[i]), range(frames))
     print(f"  {'rotations, foot lock + floor':32s} {med:6.3f} / {p95:6.3f}")
     try:
-        from live.skinning import lbs
+        from live.skinning import pose_transforms, skin
     except ImportError:
         print("  (live/skinning.py not available: LBS not timed)")
         return
@@ -65,11 +65,14 @@ def bench_speed(frames: int) -> None:
     rest_v = (dst[rng.integers(0, 22, verts)] + rng.normal(scale=0.03, size=(verts, 3))).astype(np.float32)
     w = rng.random((verts, 22)).astype(np.float32) ** 8
     w /= w.sum(axis=1, keepdims=True)
+    # Read-only, like a loaded avatar: the skinning layout is then prepared once, not per frame.
+    rest_v.flags.writeable = False
+    w.flags.writeable = False
     rt = AnalyticRetargeter(src, dst)
 
-    def stage(j):
-        r, q, _ = rt.step(j)
-        lbs(rest_v, w, dst, q[None], r[None])
+    def stage(j):  # as live/stages.py skins: the step's own global rotations and joints
+        _, _, posed = rt.step(j)
+        skin(rest_v, w, pose_transforms(rt.last_globals, posed, dst)[None])
 
     med, p95 = _time_steps(stage, joints)
     print(f"  {'step + LBS (7k vertices)':32s} {med:6.3f} / {p95:6.3f}")

@@ -56,7 +56,7 @@ def main() -> None:
     from live.retarget.evaluate import _on_body, grounded
     from live.retarget.skinning_field import SkinningFieldModel
     from live.rig_mapping import load_motion, resample
-    from live.skinning import lbs
+    from live.skinning import lbs, pose_transforms, skin
 
     names = sorted(list_presets())
     src = load_body(args.source or names[0])
@@ -76,11 +76,17 @@ def main() -> None:
     for name, rt in (("learned", learned), ("analytic", analytic)):
         rt.reset()
 
-        def stage(j, rt=rt):
+        def stage(j, rt=rt):  # as live/stages.py skins: the step's own global rotations
+            _, _, posed = rt.step(j)
+            skin(tgt.vertices, tgt.weights, pose_transforms(rt.last_globals, posed, tgt.rest_joints)[None])
+
+        def stage_from_quats(j, rt=rt):
             r, q, _ = rt.step(j)
             lbs(tgt.vertices, tgt.weights, tgt.rest_joints, q[None], r[None])
 
         rows.append((f"{name}: step() + LBS", _times(stage, joints)))
+        rt.reset()
+        rows.append((f"{name}: step() + LBS from quaternions", _times(stage_from_quats, joints)))
     field = SkinningFieldModel()
     rows.append((f"skinning field, {len(tgt.vertices)} points (per avatar)",
                  _times(lambda _: field.weights(tgt.vertices, tgt.rest_joints), range(30))))

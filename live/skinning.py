@@ -77,10 +77,26 @@ def _single_frame_transforms(rotations: np.ndarray, root: np.ndarray, rest: np.n
     return out
 
 
+def pose_transforms(global_rotations: np.ndarray, joints: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
+    """(22, 3, 4) skinning transforms of a pose already solved as global rotation matrices
+    (22, 3, 3) and joint positions (22, 3), as the retargeters hold them: no quaternion round
+    trip and no second forward kinematics (``skinning_transforms`` from local rotations)."""
+    g = np.asarray(global_rotations, np.float64)
+    out = np.empty((len(g), 3, 4))
+    out[:, :, :3] = g
+    out[:, :, 3] = np.asarray(joints, np.float64) - np.einsum("jab,jb->ja", g, np.asarray(rest_joints, np.float64))
+    return out
+
+
 def lbs(rest_vertices: np.ndarray, weights: np.ndarray, rest_joints: np.ndarray, rotations: np.ndarray,
         root: np.ndarray, parents: np.ndarray = PARENTS) -> np.ndarray:
     """Posed vertices (T, V, 3) float32 (T = 1 for a single (22, 4) pose)."""
-    g = skinning_transforms(rotations, root, rest_joints, parents).astype(np.float32)  # T x J x 3 x 4
+    return skin(rest_vertices, weights, skinning_transforms(rotations, root, rest_joints, parents))
+
+
+def skin(rest_vertices: np.ndarray, weights: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+    """Posed vertices (T, V, 3) float32 from skinning transforms (T, 22, 3, 4)."""
+    g = np.asarray(transforms, np.float32)
     t_count, j_count = g.shape[:2]
     wt = _transposed(weights)  # J x V
     vt = _transposed(rest_vertices)  # 3 x V

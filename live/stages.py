@@ -109,10 +109,11 @@ class RetargetStage:
         root, rotations, avatar_joints = self._retargeter.step(joints, dt=dt)
         vertices = None
         if self.skin:
-            from live.skinning import lbs
+            from live.skinning import pose_transforms, skin
 
-            vertices = lbs(self.avatar.vertices, self.avatar.weights, self.avatar.rest_joints,
-                           rotations, root)[0]
+            # The retargeter's own global rotations and joints: no second FK from quaternions.
+            g = pose_transforms(self._retargeter.last_globals, avatar_joints, self.avatar.rest_joints)
+            vertices = skin(self.avatar.vertices, self.avatar.weights, g[None])[0]
         result.avatar = AvatarPose(t_ns=result.t_ns, root=np.asarray(root, np.float32),
                                    rotations=np.asarray(rotations, np.float32),
                                    joints=np.asarray(avatar_joints, np.float32), vertices=vertices)

@@ -129,3 +129,27 @@ def test_committed_model_on_held_out_clip():
     assert err < 0.065, f"MPJPE {err:.3f} m"
     # Reasonable motion: no frame jumps more than the truth does, by a wide margin.
     assert np.abs(np.diff(pred, axis=0)).max() < np.abs(np.diff(gt, axis=0)).max() + 0.1
+
+
+@pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="no committed retarget.onnx")
+@pytest.mark.parametrize("kind", ["analytic", "learned"])
+def test_step_globals_skin_like_the_quaternions(kind):
+    """The live stage skins with each step's own global rotations: the same mesh as LBS from
+    the step's quaternions and root."""
+    from live.retarget import AnalyticRetargeter
+    from live.skinning import lbs, pose_transforms, skin
+
+    rng = np.random.default_rng(5)
+    src = default_rest_joints()
+    dst = src * 0.8
+    dst[:, 1] -= dst[:, 1].min() - src[:, 1].min()
+    rot, root = _motion(rng, 12)
+    joints, _ = forward_kinematics(rot, root, src)
+    rt = AnalyticRetargeter(src, dst) if kind == "analytic" else LearnedRetargeter(None, src, dst)
+    verts = (dst[rng.integers(0, 22, 300)] + rng.normal(0, 0.03, (300, 3))).astype(np.float32)
+    weights = rng.random((300, 22)).astype(np.float32) ** 6
+    weights /= weights.sum(1, keepdims=True)
+    for j in joints:
+        r, q, posed = rt.step(j)
+        fast = skin(verts, weights, pose_transforms(rt.last_globals, posed, dst)[None])
+        np.testing.assert_allclose(fast, lbs(verts, weights, dst, q[None], r[None]), atol=2e-5)

@@ -83,6 +83,8 @@ class LearnedRetargeter:
         self.h_dec = np.zeros(self._h_shapes["h_dec"], np.float32)
         self._prev_root: np.ndarray | None = None
         self._last_t_ns: int | None = None
+        # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
+        self.last_globals: np.ndarray | None = None
 
     def step(self, pose: np.ndarray, root: np.ndarray | None = None,
              dt: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,7 +109,8 @@ class LearnedRetargeter:
         loc = glob.copy()
         loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
         root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
-        _, joints = fk_matrices(loc[None], root_t[None], self._offsets)
+        glob, joints = fk_matrices(loc[None], root_t[None], self._offsets)
+        self.last_globals = glob[0]
         return root_t, matrix_to_quat(loc), joints[0]
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:

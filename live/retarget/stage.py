@@ -76,6 +76,8 @@ class AnalyticRetargeter:
         self.locker.reset()
         self.contact = np.zeros(2, dtype=bool)
         self._last_t_ns: int | None = None
+        # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
+        self.last_globals: np.ndarray | None = None
 
     def step(
         self, pose: np.ndarray, root: np.ndarray | None = None, dt: float | None = None
@@ -108,6 +110,7 @@ class AnalyticRetargeter:
             apply_limb_ik(glob, loc, pos, self.target.offsets, _ARMS, _ARM_HINGES, wrists, CHILDREN, PARENTS)
         if self.foot_lock or self.floor:
             self._place_feet(glob, loc, pos, self.dt if dt is None else dt)
+        self.last_globals = glob
         return root_t, matrix_to_quat(loc), pos
 
     def _place_feet(self, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, dt: float) -> None:
