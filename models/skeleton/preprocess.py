@@ -414,6 +414,7 @@ class PersonFinder:
         labels[j0:j1, i0:i1] = crop_labels
         point_label = np.where(inside, labels[j, i], 0)
         counts = np.bincount(point_label, minlength=n)
+        moved = None if moving is None else np.bincount(point_label[moving], minlength=n)
         best, best_score = None, 0.0
         for lab in np.argsort(-counts):
             if lab == 0 or counts[lab] < min_points:
@@ -439,10 +440,10 @@ class PersonFinder:
             if narrow < cfg.min_narrow_top:
                 continue  # flat-topped: furniture (this also rejects a person lying down)
             score = counts[lab] * min(height, 1.8) ** 2 * narrow
-            if moving is not None:
-                share = (float(moving[sel].mean()) - cfg.motion_noise_share) / (
+            if moved is not None:
+                share = (float(moved[lab] / counts[lab]) - cfg.motion_noise_share) / (
                     cfg.motion_full_share - cfg.motion_noise_share)
-                score *= cfg.static_weight + (1.0 - cfg.static_weight) * float(np.clip(share, 0.0, 1.0))
+                score *= cfg.static_weight + (1.0 - cfg.static_weight) * min(max(share, 0.0), 1.0)
             if self._last_center is not None:
                 score /= 1.0 + np.linalg.norm(c - self._last_center)
             if score > best_score:
