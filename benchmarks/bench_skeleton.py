@@ -87,6 +87,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
     for name, med, p95 in rows:
         print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")
+    by_name = {name: med for name, med, _ in rows}
+    for what in ("model alone", "whole stage"):
+        ours = [m for n, m in by_name.items() if n.startswith(f"{what}: ours") and "One Euro" not in n]
+        ref = [m for n, m in by_name.items() if n.startswith(f"{what}: baseline")]
+        if ours and ref:
+            print(f"{what}: ours / reference PointNet (medians, same process) = {ours[0] / ref[0]:.2f}")
 
 
 if __name__ == "__main__":

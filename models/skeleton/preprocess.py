@@ -283,9 +283,10 @@ class PersonFinder:
         world, pixels, c2w = got
         above = np.flatnonzero(world[:, 1] > cfg.floor_margin_m)
         scale = (cfg.coarse_stride / cfg.pixel_stride) ** 2 if coarse else 1.0
-        moving = self._moving_pixels(frame, cfg.coarse_stride if coarse else cfg.pixel_stride)
+        moving = self._moving_pixels(frame, cfg.coarse_stride if coarse else cfg.pixel_stride,
+                                     None if pixels is None else pixels[above])
         found = self._cluster(world[above], c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10),
-                              moving=None if moving is None else moving[pixels[above]])
+                              moving=moving)
         if found is None:
             self.counters.nobody += 1
             return None
@@ -305,10 +306,10 @@ class PersonFinder:
         return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
                            count=int(len(person) * scale), height_m=float(person[:, 1].max()))
 
-    def _moving_pixels(self, frame: DepthFrame, s: int) -> np.ndarray | None:
-        """Flat bool mask of the strided depth image: depth changed since the newest stored
-        frame at least motion_lag_s older (None without a depth image or such a frame)."""
-        if frame.depth_mm is None:
+    def _moving_pixels(self, frame: DepthFrame, s: int, at: np.ndarray | None) -> np.ndarray | None:
+        """Bool per flat index ``at`` of the strided depth image: depth changed since the newest
+        stored frame at least motion_lag_s older (None without a depth image or such a frame)."""
+        if frame.depth_mm is None or at is None:
             return None
         cfg = self.config
         depth = frame.depth_mm[::s, ::s]
@@ -319,13 +320,14 @@ class PersonFinder:
         while len(past) > 1 and past[1][0] <= frame.t_ns - lag:
             past.popleft()  # keep one frame at least motion_lag_s old, and the newer ones
         ref = past[0][1] if past else None
-        past.append((frame.t_ns, depth.copy()))
+        depth = depth.copy()  # contiguous: kept for later frames, and flat-indexed below
+        past.append((frame.t_ns, depth))
         if ref is None:
             return None
-        z = depth.astype(np.float32) * np.float32(0.001)
-        z_ref = ref.astype(np.float32) * np.float32(0.001)
-        changed = (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
-        return changed.reshape(-1)
+        # Only at the points asked about (those above the floor): a third of the image or less.
+        z = depth.reshape(-1)[at].astype(np.float32) * np.float32(0.001)
+        z_ref = ref.reshape(-1)[at].astype(np.float32) * np.float32(0.001)
+        return (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
 
     def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, person_idx: np.ndarray, labels: np.ndarray,
                      lab: int, origin: np.ndarray, rng: np.random.Generator) -> np.ndarray:
