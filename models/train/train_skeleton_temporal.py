@@ -43,7 +43,7 @@ class TemporalRefineNet(nn.Module):
     independent dropout masks on consecutive frames would be jitter the acceleration loss
     then fights."""
 
-    def __init__(self, window: int, width: int = 256, depth: int = 3, dropout: float = 0.0):
+    def __init__(self, window: int, width: int = 512, depth: int = 3, dropout: float = 0.0):
         super().__init__()
         from models.skeleton.temporal import feature_size
 
