@@ -61,7 +61,7 @@ class RetargetStage:
         if self.kind == "learned":
             from live.retarget.learned import LearnedRetargeter
 
-            return LearnedRetargeter(self.model_path, rest, self.avatar.rest_joints)
+            return LearnedRetargeter(self.model_path, rest, self.avatar.rest_joints, foot_lock=self.foot_lock, floor=True)
         from live.retarget.stage import AnalyticRetargeter
 
         return AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock, hand_ik=self.hand_ik)

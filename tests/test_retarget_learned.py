@@ -153,3 +153,30 @@ def test_step_globals_skin_like_the_quaternions(kind):
         r, q, posed = rt.step(j)
         fast = skin(verts, weights, pose_transforms(rt.last_globals, posed, dst)[None])
         np.testing.assert_allclose(fast, lbs(verts, weights, dst, q[None], r[None]), atol=2e-5)
+
+
+@pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="no committed retarget.onnx")
+def test_learned_with_foot_placement_holds_sliding_feet_above_the_floor():
+    """The network's output through the analytic foot placement (as the retarget stage runs it):
+    a standing source whose pelvis sways (its feet slide with it) gives avatar feet that stay
+    put and never go below the floor."""
+    from live.retarget.contacts import FEET
+    from live.skeleton import NUM_JOINTS
+
+    src = default_rest_joints()
+    dst = default_rest_joints(1.4)
+    t = 60
+    rot = np.zeros((t, NUM_JOINTS, 4))
+    rot[..., 0] = 1.0
+    root = np.tile(src[0].astype(np.float64), (t, 1))
+    root[:, 0] += 0.03 * np.sin(np.linspace(0, 2 * np.pi, t))
+    root[:, 1] -= 0.03  # and pushed into the floor
+    joints, _ = forward_kinematics(rot, root, src)
+    raw = LearnedRetargeter(None, src, dst)
+    placed = LearnedRetargeter(None, src, dst, foot_lock=True, floor=True)
+    out_raw = np.stack([raw.step(j)[2] for j in joints])
+    out = np.stack([placed.step(j)[2] for j in joints])
+    ankles, feet = FEET[:, 0], FEET.ravel()
+    assert np.ptp(out_raw[:, ankles, 0], axis=0).min() > 0.02  # the network slides with the source
+    assert np.abs(out[8:, ankles] - out[8, ankles]).max() < 0.01  # locked
+    assert out[:, feet, 1].min() > -1e-9 and placed.contact.all()

@@ -47,7 +47,8 @@ def _on_body(motion, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray, fps: float,
                     model: str | Path | None = None):
-    """An AnalyticRetargeter (defaults: foot lock + floor) or a LearnedRetargeter."""
+    """An AnalyticRetargeter or a LearnedRetargeter, both as the pipeline's retarget stage runs
+    them: foot lock + floor clearance on."""
     if kind == "analytic":
         from live.retarget.stage import AnalyticRetargeter
 
@@ -55,7 +56,7 @@ def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray,
     if kind == "learned":
         from live.retarget.learned import LearnedRetargeter
 
-        return LearnedRetargeter(model, source_rest, target_rest, fps=fps)
+        return LearnedRetargeter(model, source_rest, target_rest, fps=fps, foot_lock=True, floor=True)
     raise UserInputError(f"unknown retargeter {kind!r}; choose analytic or learned")
 
 

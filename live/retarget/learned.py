@@ -18,6 +18,7 @@ from live.errors import ModelError, UserInputError
 from live.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.kinematics import forward_kinematics
 from live.retarget.analytic import fk_matrices
+from live.retarget.feet import FootPlanter
 from live.rotations import matrix_to_quat, sixd_to_matrix
 from live.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 
@@ -50,10 +51,12 @@ class LearnedRetargeter:
 
     model_path: the .onnx file (default models/weights/retarget.onnx); source_rest, target_rest:
     (22, 3) T-poses. fps: frame rate assumed when ``step`` is not given ``dt``. threads: onnxruntime
-    intra-op threads (1: the network is small and the machine is shared)."""
+    intra-op threads (1: the network is small and the machine is shared). foot_lock / floor: the
+    analytic retargeter's foot placement after the network (live/retarget/feet.py); off here, so
+    that the class is the network alone, and on in the pipeline's retarget stage."""
 
     def __init__(self, model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,
-                 *, fps: float = 30.0, threads: int = 1):
+                 *, fps: float = 30.0, threads: int = 1, foot_lock: bool = False, floor: bool = False):
         from live.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
@@ -75,14 +78,21 @@ class LearnedRetargeter:
         self._tgt_feat = rest_features(self.target_rest)[None]
         self._offsets = rest_offsets(self.target_rest)
         self.dt = 1.0 / fps
+        self.feet = FootPlanter(self.target_rest, self._offsets, foot_lock=foot_lock, floor=floor)
         self.reset()
 
+    @property
+    def contact(self) -> np.ndarray:
+        """(2,) bool: left, right foot in contact on the last frame (with foot_lock)."""
+        return self.feet.contact
+
     def reset(self) -> None:
-        """Forget the motion so far (GRU states, last root, last timestamp)."""
+        """Forget the motion so far (GRU states, last root, foot contacts, last timestamp)."""
         self.h_enc = np.zeros(self._h_shapes["h_enc"], np.float32)
         self.h_dec = np.zeros(self._h_shapes["h_dec"], np.float32)
         self._prev_root: np.ndarray | None = None
         self._last_t_ns: int | None = None
+        self.feet.reset()
         # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
         self.last_globals: np.ndarray | None = None
 
@@ -110,8 +120,10 @@ class LearnedRetargeter:
         loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
         root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
         glob, joints = fk_matrices(loc[None], root_t[None], self._offsets)
-        self.last_globals = glob[0]
-        return root_t, matrix_to_quat(loc), joints[0]
+        glob, joints = glob[0], joints[0]
+        self.feet(glob, loc, joints, self.dt if dt is None else dt)
+        self.last_globals = glob
+        return root_t, matrix_to_quat(loc), joints
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""

@@ -13,14 +13,13 @@ import numpy as np
 from live.errors import UserInputError
 from live.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, leg_ratio, solve_globals
-from live.retarget.contacts import FEET, ContactDetector, ContactThresholds, FootLock, floor_lift
+from live.retarget.contacts import ContactThresholds
+from live.retarget.feet import FootPlanter
 from live.retarget.ik import apply_limb_ik
 from live.rotations import matrix_to_quat, quat_to_matrix
 from live.skeleton import CHILDREN, NUM_JOINTS, PARENTS
 
-_LEGS = np.array([limb[:3] for limb in LIMBS[:2]], dtype=np.int64)
 _ARMS = np.array([limb[:3] for limb in LIMBS[2:]], dtype=np.int64)
-_LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)
 _ARM_HINGES = np.array([limb[3] for limb in LIMBS[2:]], dtype=np.float64)
 
 
@@ -65,16 +64,19 @@ class AnalyticRetargeter:
         self.hand_ik = hand_ik
         self.floor = floor
         self.dt = 1.0 / fps
-        self.detector = ContactDetector(self.target.rest_joints, thresholds)
-        self.locker = FootLock(self.target.rest_joints, blend_frames=blend_frames)
+        self.feet = FootPlanter(self.target.rest_joints, self.target.offsets, foot_lock=foot_lock, floor=floor,
+                                blend_frames=blend_frames, thresholds=thresholds)
         self.reset()
+
+    @property
+    def contact(self) -> np.ndarray:
+        """(2,) bool: left, right foot in contact on the last frame."""
+        return self.feet.contact
 
     def reset(self) -> None:
         """Forget the motion so far (limb twists, contacts, locks, last timestamp)."""
         self.twist = np.zeros(len(LIMBS))
-        self.detector.reset()
-        self.locker.reset()
-        self.contact = np.zeros(2, dtype=bool)
+        self.feet.reset()
         self._last_t_ns: int | None = None
         # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
         self.last_globals: np.ndarray | None = None
@@ -108,21 +110,9 @@ class AnalyticRetargeter:
                 _, src = fk_matrices(quat_to_matrix(pose)[None], src_root[None], self.source.offsets)
             wrists = root_t + (src[0, _ARMS[:, 2]] - src_root) * self.ratio
             apply_limb_ik(glob, loc, pos, self.target.offsets, _ARMS, _ARM_HINGES, wrists, CHILDREN, PARENTS)
-        if self.foot_lock or self.floor:
-            self._place_feet(glob, loc, pos, self.dt if dt is None else dt)
+        self.feet(glob, loc, pos, self.dt if dt is None else dt)
         self.last_globals = glob
         return root_t, matrix_to_quat(loc), pos
-
-    def _place_feet(self, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, dt: float) -> None:
-        ankles = pos[FEET[:, 0]]
-        targets = ankles
-        if self.foot_lock:
-            self.contact = self.detector.update(ankles, dt)
-            targets = self.locker.update(ankles, self.contact)
-        if self.floor:
-            targets = floor_lift(targets, pos[FEET[:, 1]] - ankles)
-        if np.max(np.abs(targets - ankles)) > 1e-7:
-            apply_limb_ik(glob, loc, pos, self.target.offsets, _LEGS, _LEG_HINGES, targets, CHILDREN, PARENTS)
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
