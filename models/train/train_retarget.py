@@ -177,12 +177,13 @@ def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body
 
 
 # ------------------------------------------------------------------------------------- training
-#: Error of the filtered depth skeleton stage per joint (std per axis, mm) and its frame-to-frame
+#: Error of the depth skeleton stage per joint (std per axis, mm) and its frame-to-frame
 #: correlation at 30 fps, measured on training clips (cc_002_05, mb_02_01 on heavy_male and
-#: petite_female, virtual OAK-D): `python -m models.train.measure_skeleton_noise`, with the
-#: 60-epoch skeleton model; the refined model's error is ~30 % smaller, inside the U(0, 1.2) scale.
-DEPTH_NOISE_MM = (15, 20, 16, 15, 16, 15, 17, 19, 25, 21, 27, 27, 22, 18, 20, 23, 24, 26, 51, 46, 50, 46)
-DEPTH_NOISE_CORR = 0.8
+#: petite_female, virtual OAK-D) behind the online temporal model (skeleton_temporal.onnx), the
+#: stage's default: `python -m models.train.measure_skeleton_noise`. (Behind the One Euro filter of
+#: earlier releases it was ~1.6x larger: 15-27 mm on the body, 46-51 on the wrists, 0.8.)
+DEPTH_NOISE_MM = (9, 13, 12, 9, 11, 10, 10, 16, 15, 10, 16, 16, 9, 8, 8, 9, 13, 14, 34, 31, 37, 28)
+DEPTH_NOISE_CORR = 0.87
 
 
 def depth_like_noise(shape: tuple[int, int, int, int], scale: torch.Tensor) -> torch.Tensor:
@@ -338,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
                  "train_frames": frames, "val_subjects": [7, 8, 12, 16], "val_clips": len(val_ids),
                  "train_bodies": train_names, "val_bodies": val_names,
                  "augmentation": "random yaw; per-bone length x0.85-1.15; source noise like the depth skeleton's "
-                                 f"(per-joint size DEPTH_NOISE_MM x U(0, {args.noise}), AR(1) 0.8 per frame) in half the batches"},
+                                 f"(per-joint size DEPTH_NOISE_MM x U(0, {args.noise}), AR(1) {DEPTH_NOISE_CORR} per frame) in half the batches"},
         "losses": {"supervised": "L1 joints + 0.5 rotation matrices + root (exact targets)",
                    "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": "10 x (L1 velocity + L1 acceleration) against the truth",
                    "adversarial": "not used"},
