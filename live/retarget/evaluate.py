@@ -46,17 +46,17 @@ def _on_body(motion, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray, fps: float,
-                    model: str | Path | None = None):
+                    model: str | Path | None = None, feet: bool = True):
     """An AnalyticRetargeter or a LearnedRetargeter, both as the pipeline's retarget stage runs
-    them: foot lock + floor clearance on."""
+    them: foot lock + floor clearance on (``feet=False``: both without, the bare solvers)."""
     if kind == "analytic":
         from live.retarget.stage import AnalyticRetargeter
 
-        return AnalyticRetargeter(source_rest, target_rest, fps=fps)
+        return AnalyticRetargeter(source_rest, target_rest, fps=fps, foot_lock=feet, floor=feet)
     if kind == "learned":
         from live.retarget.learned import LearnedRetargeter
 
-        return LearnedRetargeter(model, source_rest, target_rest, fps=fps, foot_lock=True, floor=True)
+        return LearnedRetargeter(model, source_rest, target_rest, fps=fps, foot_lock=feet, floor=feet)
     raise UserInputError(f"unknown retargeter {kind!r}; choose analytic or learned")
 
 
@@ -156,7 +156,7 @@ def source_skeletons(motion, source_body, from_: str, **depth_options) -> tuple[
 
 
 def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, retarget: str, *, fps: float = 30.0,
-          model: str | Path | None = None) -> dict[str, Any]:
+          model: str | Path | None = None, feet: bool = True) -> dict[str, Any]:
     """Retarget source joints (T x 22 x 3) online onto the target body, skin, compare with the
     ground truth of the motion on the target: the metrics dict (see ``evaluate_retarget``)."""
     from live.metrics import acceleration_error, knn_edges, mpjpe, mpvd, pa_acceleration_error, pa_mpjpe, pa_mpvd
@@ -164,7 +164,7 @@ def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, ret
 
     tgt = target_body
     gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
-    rt = make_retargeter(retarget, src_rest, tgt.rest_joints, fps, model)
+    rt = make_retargeter(retarget, src_rest, tgt.rest_joints, fps, model, feet)
     root, rot, joints = (np.stack(x) for x in zip(*(rt.step(j) for j in src_joints)))
     verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, rot, root)
     gt_verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, motion.rotations, gt_root)
@@ -197,7 +197,8 @@ def format_report(results: dict[str, Any] | list[dict[str, Any]], reference: boo
         return " | ".join(f"{1000 * r[m]:.1f}" if m != "mdel" else f"{1000 * r[m]:.3f}" for m in METRICS)
 
     for r in rows:
-        lines.append(f"| {r['retarget']} | {r['from']} | {r['motion']} | {r['source_body']} -> {r['target_body']} "
+        name = r["retarget"] + ("" if r.get("feet", True) else ", no foot lock / floor")
+        lines.append(f"| {name} | {r['from']} | {r['motion']} | {r['source_body']} -> {r['target_body']} "
                      f"| {fmt(r)} |")
     if reference:
         lines.append(f"| reference | - | SMPL test | - | {fmt(REFERENCE)} |")
@@ -212,7 +213,7 @@ HELD_OUT_CLIPS = ("cc_007_01.bvh", "mb_08_01.bvh", "mb_12_01.bvh", "mb_16_15.bvh
 
 def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD_OUT_CLIPS,
                    bvh_dir: str | Path | None = None, model: str | Path | None = None, seed: int = 0,
-                   lag: int = 0, progress=None) -> list[dict[str, Any]]:
+                   lag: int = 0, feet: bool = True, progress=None) -> list[dict[str, Any]]:
     """Analytic and learned side by side on held-out clips x held-out body pairs (each held-out
     preset to the next), the same source skeletons fed to both. Returns one averaged result per
     retargeter (metrics are means over the runs; ``runs`` says how many)."""
@@ -230,7 +231,7 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
             joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i, lag=lag) \
                 if from_ == "depth" else source_skeletons(motion, src, from_)
             for kind in runs:
-                r = score(motion, tgt, joints, rest, kind, model=model)
+                r = score(motion, tgt, joints, rest, kind, model=model, feet=feet)
                 r["found"] = float(found.mean())
                 runs[kind].append(r)
             if progress is not None:
@@ -238,7 +239,7 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
     out = []
     for kind, rows in runs.items():
         mean = {m: float(np.mean([r[m] for r in rows])) for m in METRICS + ("found",)}
-        mean.update(retarget=kind, motion=f"{len(clips)} held-out clips x {max_frames} frames",
+        mean.update(retarget=kind, feet=feet, motion=f"{len(clips)} held-out clips x {max_frames} frames",
                     source_body=f"{len(bodies)} held-out bodies", target_body="the next one", runs=len(rows), lag=lag,
                     frames=int(sum(r["frames"] for r in rows)), fps=30.0, **{"from": from_})
         out.append(mean)
@@ -255,9 +256,10 @@ if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] 
     cli.add_argument("which", nargs="?", default="skeleton", choices=["skeleton", "depth"])
     cli.add_argument("frames", nargs="?", type=int, default=300)
     cli.add_argument("--lag", type=int, default=0, help="skeleton stage lag in frames (with depth)")
+    cli.add_argument("--no-feet", action="store_true", help="both retargeters without foot lock and floor clearance")
     cli.add_argument("--card", action="store_true", help="record the table in the retargeter's model card")
     a = cli.parse_args()
-    table = held_out_table(a.which, max_frames=a.frames, lag=a.lag,
+    table = held_out_table(a.which, max_frames=a.frames, lag=a.lag, feet=not a.no_feet,
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_report(table))
     print(json.dumps(table, indent=1))
@@ -266,8 +268,8 @@ if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] 
 
         card_path = DEFAULT_MODEL.with_suffix(".json")
         card = json.loads(card_path.read_text())
-        key = f"from_{a.which}" + (f"_lag{a.lag}" if a.lag else "")
-        lag = f" --lag {a.lag}" if a.lag else ""
+        key = f"from_{a.which}" + (f"_lag{a.lag}" if a.lag else "") + ("_no_feet" if a.no_feet else "")
+        flags = (f" --lag {a.lag}" if a.lag else "") + (" --no-feet" if a.no_feet else "")
         card.setdefault("evaluation", {})[key] = {
-            "command": f"python -m live.retarget.evaluate {a.which} {a.frames}{lag} --card", "rows": table}
+            "command": f"python -m live.retarget.evaluate {a.which} {a.frames}{flags} --card", "rows": table}
         card_path.write_text(json.dumps(card, indent=2) + "\n")
