@@ -3,7 +3,8 @@
 Run: .venv/bin/python benchmarks/bench_retarget_learned.py [--frames 600] [--model PATH]
 Timing (median / p95 ms, 10 warm-up frames skipped), same process, same motion (a held-out CMU
 clip at 30 fps, subject 12, on a preset body, retargeted onto another):
-- the ONNX step alone (session.run with the GRU states), the full LearnedRetargeter.step;
+- the ONNX step alone (session.run with the GRU states), LearnedRetargeter.step as the network
+  alone and with foot lock + floor clearance (as the pipeline's retarget stage runs it);
 - AnalyticRetargeter.step (foot lock + floor), for comparison;
 - each retargeter's step + LBS of the target avatar (~7k vertices: a body preset), the stage goal
   being <= 2 ms p95 per frame;
@@ -66,12 +67,15 @@ def main() -> None:
     joints = np.concatenate([joints] * (1 + args.frames // len(joints)))[:args.frames]
     print(f"{len(joints)} frames, {src.name} -> {tgt.name} ({len(tgt.vertices)} vertices); ms median / p95")
 
-    learned = LearnedRetargeter(args.model, src.rest_joints, tgt.rest_joints)
+    # Both as the pipeline's retarget stage runs them: foot lock + floor clearance after the solve.
+    learned = LearnedRetargeter(args.model, src.rest_joints, tgt.rest_joints, foot_lock=True, floor=True)
+    network = LearnedRetargeter(args.model, src.rest_joints, tgt.rest_joints)
     analytic = AnalyticRetargeter(src.rest_joints, tgt.rest_joints)
     feed = {"source": np.zeros((1, learned.session.get_inputs()[0].shape[1]), np.float32),
             "target": learned._tgt_feat, "h_enc": learned.h_enc, "h_dec": learned.h_dec}
     rows = [("learned: ONNX session.run alone", _times(lambda _: learned.session.run(None, feed), joints))]
-    rows.append(("learned: step()", _times(learned.step, joints)))
+    rows.append(("learned: step(), network only", _times(network.step, joints)))
+    rows.append(("learned: step() (foot lock + floor)", _times(learned.step, joints)))
     rows.append(("analytic: step() (foot lock + floor)", _times(analytic.step, joints)))
     for name, rt in (("learned", learned), ("analytic", analytic)):
         rt.reset()
