@@ -230,6 +230,29 @@ def fk_matrices(loc: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> tuple
     return glob, pos
 
 
+def _ancestry() -> np.ndarray:
+    """(22, 22): A[j, i] = 1 where the bone into joint i lies on the chain from the root to j."""
+    a = np.zeros((NUM_JOINTS, NUM_JOINTS))
+    for j in range(1, NUM_JOINTS):
+        i = j
+        while i > 0:
+            a[j, i] = 1.0
+            i = int(PARENTS[i])
+    return a
+
+
+_ANCESTRY_BONES = _ancestry()[:, 1:]  # (22, 21): the root has no bone of its own
+
+
+def joints_from_globals(glob: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Joint positions (N, 22, 3) of a pose given as global rotations (N, 22, 3, 3): each bone's
+    rest offset turned by its parent's global rotation, summed down the tree from the root (N, 3).
+    The same joints as ``fk_matrices`` of the matching local rotations, in one einsum and one
+    matmul with the constant ancestry matrix instead of a level-by-level loop."""
+    bones = np.einsum("nkij,kj->nki", glob[:, PARENTS[1:]], offsets[1:])  # (N, 21, 3)
+    return np.asarray(root, np.float64)[:, None, :] + _ANCESTRY_BONES @ bones
+
+
 def local_rotations_from_joints(joints: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
     """Local rotations relative to the canonical T-pose from world joint positions.
 

@@ -17,7 +17,7 @@ import numpy as np
 from live.errors import ModelError, UserInputError
 from live.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.kinematics import forward_kinematics
-from live.retarget.analytic import fk_matrices
+from live.retarget.analytic import joints_from_globals
 from live.retarget.feet import FootPlanter
 from live.rotations import matrix_to_quat, sixd_to_matrix
 from live.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
@@ -119,8 +119,7 @@ class LearnedRetargeter:
         loc = glob.copy()
         loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
         root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
-        glob, joints = fk_matrices(loc[None], root_t[None], self._offsets)
-        glob, joints = glob[0], joints[0]
+        joints = joints_from_globals(glob[None], root_t[None], self._offsets)[0]
         self.feet(glob, loc, joints, self.dt if dt is None else dt)
         self.last_globals = glob
         return root_t, matrix_to_quat(loc), joints

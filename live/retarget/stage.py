@@ -12,7 +12,7 @@ import numpy as np
 
 from live.errors import UserInputError
 from live.frames import AvatarPose, GroundTruth, SkeletonFrame
-from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, leg_ratio, solve_globals
+from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, joints_from_globals, leg_ratio, solve_globals
 from live.retarget.contacts import ContactThresholds
 from live.retarget.feet import FootPlanter
 from live.retarget.ik import apply_limb_ik
@@ -92,18 +92,22 @@ class AnalyticRetargeter:
         pose = np.asarray(pose, dtype=np.float64)
         if pose.shape == (NUM_JOINTS, 3):
             src = pose[None]
-            _, loc, self.twist = solve_globals(src, self.source, self.twist)
+            glob, loc, self.twist = solve_globals(src, self.source, self.twist)
             src_root = pose[0]
+            root_t = src_root * self.ratio
+            # Local rotations mean the same on every canonical body, so are the global ones:
+            # the target's joints come from the source's globals and the target's bones.
+            pos = joints_from_globals(glob, root_t[None], self.target.offsets)
         elif pose.shape == (NUM_JOINTS, 4):
             if root is None:
                 raise UserInputError("rotations need a root position")
             src_root = np.asarray(root, dtype=np.float64)
             loc = quat_to_matrix(pose)[None]
             src = None
+            root_t = src_root * self.ratio
+            glob, pos = fk_matrices(loc, root_t[None], self.target.offsets)
         else:
             raise UserInputError(f"a frame is (22, 3) joints or (22, 4) rotations, got {pose.shape}")
-        root_t = src_root * self.ratio
-        glob, pos = fk_matrices(loc, root_t[None], self.target.offsets)
         glob, loc, pos = glob[0], loc[0].copy(), pos[0]
         if self.hand_ik:
             if src is None:
