@@ -51,9 +51,7 @@ def skinning_transforms(rotations: np.ndarray, root: np.ndarray, rest_joints: np
         return _single_frame_transforms(rotations.reshape(-1, 4), np.asarray(root, np.float64).reshape(3),
                                         rest, parents)[None]
     joints, glob = forward_kinematics(rotations, np.asarray(root, np.float64), rest, parents)
-    r = quat_to_matrix(glob)  # T x J x 3 x 3
-    t = joints - np.einsum("tjab,jb->tja", r, rest)
-    return np.concatenate([r, t[..., None]], axis=-1)
+    return pose_transforms(quat_to_matrix(glob), joints, rest)
 
 
 def _single_frame_transforms(rotations: np.ndarray, root: np.ndarray, rest: np.ndarray,
@@ -71,20 +69,17 @@ def _single_frame_transforms(rotations: np.ndarray, root: np.ndarray, rest: np.n
         else:
             glob[j] = glob[p] @ local[j]
             pos[j] = pos[p] + glob[p] @ offsets[j]
-    out = np.empty((len(parents), 3, 4))
-    out[:, :, :3] = glob
-    out[:, :, 3] = pos - np.einsum("jab,jb->ja", glob, rest)
-    return out
+    return pose_transforms(glob, pos, rest)
 
 
 def pose_transforms(global_rotations: np.ndarray, joints: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
-    """(22, 3, 4) skinning transforms of a pose already solved as global rotation matrices
-    (22, 3, 3) and joint positions (22, 3), as the retargeters hold them: no quaternion round
-    trip and no second forward kinematics (``skinning_transforms`` from local rotations)."""
+    """(..., 22, 3, 4) skinning transforms [G | p - G r] of a pose given as global rotation
+    matrices (..., 22, 3, 3) and joint positions (..., 22, 3): what the retargeters hold, so the
+    live stage skins with no quaternion round trip and no second forward kinematics."""
     g = np.asarray(global_rotations, np.float64)
-    out = np.empty((len(g), 3, 4))
-    out[:, :, :3] = g
-    out[:, :, 3] = np.asarray(joints, np.float64) - np.einsum("jab,jb->ja", g, np.asarray(rest_joints, np.float64))
+    out = np.empty(g.shape[:-1] + (4,))
+    out[..., :3] = g
+    out[..., 3] = np.asarray(joints, np.float64) - np.einsum("...jab,jb->...ja", g, np.asarray(rest_joints, np.float64))
     return out
 
 

@@ -172,11 +172,15 @@ class VotingPointNet(nn.Module):
         return out
 
 
+def _bn_scale(bn: nn.BatchNorm1d) -> torch.Tensor:
+    """Eval-mode BatchNorm is y * scale + (bias - mean * scale)."""
+    return bn.weight / torch.sqrt(bn.running_var + bn.eps)
+
+
 def _folded(layer: _PointLinear) -> tuple[torch.Tensor, torch.Tensor]:
     """(weight C_in x C_out, bias C_out) of Linear + eval-mode BatchNorm as one affine map."""
-    bn = layer.norm
-    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
-    return layer.linear.weight.t() * scale, bn.bias - bn.running_mean * scale
+    scale = _bn_scale(layer.norm)
+    return layer.linear.weight.t() * scale, layer.norm.bias - layer.norm.running_mean * scale
 
 
 class DeployedVotingPointNet(nn.Module):
@@ -199,7 +203,7 @@ class DeployedVotingPointNet(nn.Module):
             self.rounds = []
             for to_g, mix_g, mix in zip(net.to_global, net.mix_global, net.mix):
                 w_mix, b_mix = _folded(mix)
-                scale = mix.norm.weight / torch.sqrt(mix.norm.running_var + mix.norm.eps)
+                scale = _bn_scale(mix.norm)
                 # BN(f W + g M + m) = f (W s) + g (M s) + (m s + t): the global term takes the scale.
                 self.rounds.append((_folded(to_g), (mix_g.weight.t() * scale, mix_g.bias * scale + b_mix), w_mix))
             # head: per point and joint a weight logit and an offset, (w, o) = f H + h. The offset
