@@ -83,7 +83,9 @@ def _quat_to_matrix_map() -> np.ndarray:
 def _matrix_to_quat_map() -> tuple[np.ndarray, np.ndarray]:
     """(9, 16) and (16,): Shepperd's four candidate (unnormalised) quaternions, each 4 x 4 row
     one candidate, as one affine map of the flattened matrix; candidate i's pivot is entry (i, i)."""
-    m = lambda r, c: 3 * r + c  # noqa: E731
+    def m(r: int, c: int) -> int:  # row-major index of entry (r, c)
+        return 3 * r + c
+
     rows = [  # candidate -> component -> [(matrix entry, sign)], plus the constant 1 on pivots
         [[(m(0, 0), 1), (m(1, 1), 1), (m(2, 2), 1)], [(m(2, 1), 1), (m(1, 2), -1)],
          [(m(0, 2), 1), (m(2, 0), -1)], [(m(1, 0), 1), (m(0, 1), -1)]],

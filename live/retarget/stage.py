@@ -60,9 +60,7 @@ class AnalyticRetargeter:
         self.source = RestInfo.of(source_rest)
         self.target = RestInfo.of(target_rest)
         self.ratio = leg_ratio(self.source.rest_joints, self.target.rest_joints)
-        self.foot_lock = foot_lock
         self.hand_ik = hand_ik
-        self.floor = floor
         self.dt = 1.0 / fps
         self.feet = FootPlanter(self.target.rest_joints, self.target.offsets, foot_lock=foot_lock, floor=floor,
                                 blend_frames=blend_frames, thresholds=thresholds)
