@@ -145,7 +145,7 @@ def _is_identity(m: np.ndarray) -> bool:
 
 def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, eye_xz: np.ndarray,
                 band_m: float = 0.12) -> float:
-    """Person-likeness in (0.1, 1]: 1.2 minus the width of the cluster's top band over its whole
+    """Person-likeness in (0.1, 1] of a cluster's points (3, M): 1.2 minus the width of the cluster's top band over its whole
     width, both measured across the line of sight from ``eye_xz`` to the cluster's centre ``c``.
     A box, a table or a wall edge is as wide at the top as overall (~0.1); a person is topped
     by a head, or by hands (~0.2-0.8)."""
@@ -153,7 +153,7 @@ def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, ey
     n = float(np.hypot(d[0], d[1]))
     if n < 1e-6:
         return 1.0
-    lateral = (pts[:, 0] - c[0]) * (d[1] / n) - (pts[:, 2] - c[1]) * (d[0] / n)
+    lateral = (pts[0] - c[0]) * (d[1] / n) - (pts[2] - c[1]) * (d[0] / n)
     lo, hi = _quantiles(lateral, (0.02, 0.98))
     top = lateral[ys > y_top - band_m]
     if len(top) < 5 or hi - lo < 1e-3:
@@ -210,11 +210,12 @@ class PersonFinder:
         """Valid, in-range world points (M, 3) float32 of a frame and the camera_to_world used
         (depth images read on ``stride``, default pixel_stride)."""
         got = self._world(frame, stride or self.config.pixel_stride)
-        return None if got is None else (got[0], got[2])
+        return None if got is None else (np.ascontiguousarray(got[0].T), got[2])
 
     def _world(self, frame: DepthFrame, s: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray] | None:
-        """(world points (M, 3) float32, their flat pixel indices in the strided image or None
-        for a cloud frame, camera_to_world)."""
+        """(world points (3, M) float32, their flat pixel indices in the strided image or None
+        for a cloud frame, camera_to_world). Points are columns: the finder works on x, y and z
+        rows, where numpy's ops on (M, 3) rows pay an inner loop of three per point."""
         cfg = self.config
         c2w = np.asarray(frame.camera_to_world, np.float64)
         if _is_identity(c2w):
@@ -227,7 +228,8 @@ class PersonFinder:
             c2w = self._floor_c2w
         if frame.depth_mm is None:
             r = c2w[:3, :3].astype(np.float32)
-            return self._camera_points(frame, s) @ r.T + c2w[:3, 3].astype(np.float32), None, c2w
+            world = self._camera_points(frame, s) @ r.T + c2w[:3, 3].astype(np.float32)
+            return np.ascontiguousarray(world.T), None, c2w
         # Dense path: world = z * (R K^-1 (u, v, 1)) + t with the rotated rays cached per camera,
         # so a frame costs a few vector ops over the strided image.
         depth = frame.depth_mm[::s, ::s]
@@ -237,9 +239,9 @@ class PersonFinder:
             valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m)[::s, ::s]
         idx = np.flatnonzero(valid)
         rays = self._world_rays(frame.intrinsics, depth.shape, c2w, s)
-        world = rays[idx]  # a row gather: contiguous (M, 3), ~3x cheaper than columns of (3, h*w)
-        world *= z.reshape(-1)[idx][:, None]
-        world += c2w[:3, 3].astype(np.float32)
+        world = np.take(rays, idx, axis=1)
+        world *= np.take(z.reshape(-1), idx)
+        world += c2w[:3, 3].astype(np.float32)[:, None]
         return world, idx, c2w
 
     def _camera_points(self, frame: DepthFrame, s: int) -> np.ndarray:
@@ -262,12 +264,12 @@ class PersonFinder:
         return cam[(dist > cfg.min_range_m) & (dist < cfg.max_range_m)]
 
     def _world_rays(self, k: np.ndarray, shape: tuple[int, int], c2w: np.ndarray, s: int) -> np.ndarray:
-        """(h*w, 3) float32 world directions (camera z = 1) of the strided pixels, cached."""
+        """(3, h*w) float32 world directions (camera z = 1) of the strided pixels, cached."""
         key = (np.asarray(k, np.float64).tobytes(), shape, s, c2w.tobytes())
         if self._rays_key != key:
             v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64) * s
             d = np.stack([(u - k[0, 2]) / k[0, 0], (v - k[1, 2]) / k[1, 1], np.ones_like(u)])
-            self._rays = np.ascontiguousarray((c2w[:3, :3] @ d.reshape(3, -1)).T, np.float32)
+            self._rays = np.ascontiguousarray(c2w[:3, :3] @ d.reshape(3, -1), np.float32)
             self._rays_key = key
         return self._rays
 
@@ -281,18 +283,18 @@ class PersonFinder:
         if got is None:
             return None
         world, pixels, c2w = got
-        above = np.flatnonzero(world[:, 1] > cfg.floor_margin_m)
+        above = np.flatnonzero(world[1] > cfg.floor_margin_m)
         scale = (cfg.coarse_stride / cfg.pixel_stride) ** 2 if coarse else 1.0
         moving = self._moving_pixels(frame, cfg.coarse_stride if coarse else cfg.pixel_stride,
                                      None if pixels is None else pixels[above])
-        found = self._cluster(world[above], c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10),
+        found = self._cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10),
                               moving=moving)
         if found is None:
             self.counters.nobody += 1
             return None
         sel, labels, lab, origin = found
-        person = world[above[sel]]
-        center = np.array([_median(person[:, 0]), _median(person[:, 2])], np.float64)
+        person = np.take(world, above[sel], axis=1)
+        center = np.array([_median(person[0]), _median(person[2])], np.float64)
         self._last_center = center
         to_world = _person_frame(center, c2w[:3, 3])
         rng = np.random.default_rng(frame.t_ns & 0xFFFFFFFF)
@@ -300,11 +302,11 @@ class PersonFinder:
         if coarse:
             pts = self._fine_sample(frame, c2w, pixels[above[sel]], labels, lab, origin, rng)
         else:
-            pts = person[rng.choice(len(person), n, replace=len(person) < n)]
+            pts = np.take(person, rng.choice(person.shape[1], n, replace=person.shape[1] < n), axis=1).T
         local = (pts - to_world[:3, 3].astype(np.float32)) @ to_world[:3, :3].astype(np.float32)
         self.counters.found += 1
         return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
-                           count=int(len(person) * scale), height_m=float(person[:, 1].max()))
+                           count=int(person.shape[1] * scale), height_m=float(person[1].max()))
 
     def _moving_pixels(self, frame: DepthFrame, s: int, at: np.ndarray | None) -> np.ndarray | None:
         """Bool per flat index ``at`` of the strided depth image: depth changed since the newest
@@ -377,26 +379,25 @@ class PersonFinder:
 
     def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int, moving: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
-        """The person among world points (M, 3) above the floor: (bool mask (M,) of its points,
+        """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
         the cell label grid, its label, the grid origin (x, z)), or None. moving: (M,) bool,
         points whose depth changed lately (``_moving_pixels``), or None when not known."""
         cfg = self.config
-        if len(pts) < min_points:
+        if pts.shape[1] < min_points:
             return None
         cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
         origin = np.array([-cfg.grid_half_extent_m, -cfg.grid_half_extent_m], np.float32)
         if self._last_center is not None:
             origin = origin + self._last_center.astype(np.float32)
-        i = np.floor((pts[:, 0] - origin[0]) / cfg.cell_m).astype(np.int32)
-        j = np.floor((pts[:, 2] - origin[1]) / cfg.cell_m).astype(np.int32)
+        i = np.floor((pts[0] - origin[0]) / cfg.cell_m).astype(np.int32)
+        j = np.floor((pts[2] - origin[1]) / cfg.cell_m).astype(np.int32)
         inside = (i >= 0) & (i < cells) & (j >= 0) & (j < cells)
         if inside.sum() < min_points:
             return None
-        i, j = np.where(inside, i, 0), np.where(inside, j, 0)
         # Only cells with points well above the floor seed the clusters: stereo noise lifts the
         # far floor by several cm, and low noisy floor cells would join the person to the floor.
         # Low points (feet) still join the cluster of the cell they fall in after the dilation.
-        tall = inside & (pts[:, 1] > cfg.seed_height_m)
+        tall = inside & (pts[1] > cfg.seed_height_m)
         if not tall.any():
             return None
         # Label only the occupied part of the grid (a room fills a fraction of the 12 m square),
@@ -406,30 +407,65 @@ class PersonFinder:
         j0, j1 = max(int(jt.min()) - 1, 0), min(int(jt.max()) + 2, cells)
         i0, i1 = max(int(it.min()) - 1, 0), min(int(it.max()) + 2, cells)
         crop = np.zeros((j1 - j0, i1 - i0), np.uint8)
-        crop[jt - j0, it - i0] = 1
-        # Close one-cell gaps (stereo holes) so a person is one component.
+        jt, it = jt - j0, it - i0
+        crop[jt, it] = 1
+        # Close one-cell gaps (stereo holes) so a person is one component. (Labels without
+        # OpenCV's statistics, which cost 4x the labelling: the few candidates' boxes come from
+        # their seed cells below.)
         crop = cv2.dilate(crop, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        n, crop_labels, stats, _ = cv2.connectedComponentsWithStats(crop, connectivity=8)
+        n, crop_labels = cv2.connectedComponents(crop, connectivity=8, ltype=cv2.CV_32S)
         if n <= 1:
             return None
-        labels = np.zeros((cells, cells), crop_labels.dtype)
-        labels[j0:j1, i0:i1] = crop_labels
-        point_label = np.where(inside, labels[j, i], 0)
+        # Flat label lookup with a zero sentinel cell for the points outside the grid.
+        labels_flat = np.zeros(cells * cells + 1, np.int32)
+        labels_flat[:-1].reshape(cells, cells)[j0:j1, i0:i1] = crop_labels
+        point_label = labels_flat[np.where(inside, j * cells + i, cells * cells)]
+        seed_label = crop_labels[jt, it]
         counts = np.bincount(point_label, minlength=n)
-        moved = None if moving is None else np.bincount(point_label[moving], minlength=n)
+        # Each label's exact motion weight, so that count x 1.8^2 x weight bounds its score:
+        # candidates are visited by decreasing bound and the search stops when none can win
+        # (still furniture is bounded by a tenth of its size once a moving performer is seen).
+        weight = np.ones(n)
+        if moving is not None:
+            moved = np.bincount(point_label[moving], minlength=n)
+            share = (moved / np.maximum(counts, 1) - cfg.motion_noise_share) / (
+                cfg.motion_full_share - cfg.motion_noise_share)
+            weight = cfg.static_weight + (1.0 - cfg.static_weight) * np.clip(share, 0.0, 1.0)
+        bound = counts * 1.8 ** 2 * weight
+        order = np.argsort(-bound, kind="stable")
+        if self._last_center is not None:
+            # The previous person's label first (the grid is centred on them): their score then
+            # prunes the others by their distance to it, from their boxes alone.
+            ci, cj = (np.floor((self._last_center - origin) / cfg.cell_m)).astype(int)
+            tracked = labels_flat[cj * cells + ci] if 0 <= ci < cells and 0 <= cj < cells else 0
+            if tracked:
+                order = np.concatenate([[tracked], order[order != tracked]])
         best, best_score = None, 0.0
-        for lab in np.argsort(-counts):
+        for k, lab in enumerate(order):
+            if bound[lab] <= best_score:
+                if k:
+                    break  # candidates come by decreasing bound: none of the rest can score higher
+                continue
             if lab == 0 or counts[lab] < min_points:
                 continue
-            if counts[lab] * 1.8 ** 2 <= best_score:
-                break  # candidates come by decreasing size: none of the rest can score higher
-            w, h = stats[lab, cv2.CC_STAT_WIDTH], stats[lab, cv2.CC_STAT_HEIGHT]
-            footprint = np.hypot(w, h) * cfg.cell_m
+            # The component's box: its seed cells' box grown by the dilation, within the crop.
+            si, sj = it[seed_label == lab], jt[seed_label == lab]
+            b_i0, b_i1 = max(int(si.min()) - 1, 0), min(int(si.max()) + 1, crop.shape[1] - 1)
+            b_j0, b_j1 = max(int(sj.min()) - 1, 0), min(int(sj.max()) + 1, crop.shape[0] - 1)
+            footprint = np.hypot(b_i1 - b_i0 + 1, b_j1 - b_j0 + 1) * cfg.cell_m
             if footprint > cfg.max_footprint_m + 2 * cfg.cell_m:
                 continue  # a wall or a large piece of furniture
+            if self._last_center is not None and best is not None:
+                # Its median lies in its box: the box's distance to the previous person bounds
+                # the score's distance divisor (less 1 mm for float32 cell rounding).
+                lo = origin + np.array([i0 + b_i0, j0 + b_j0]) * cfg.cell_m
+                hi = origin + np.array([i0 + b_i1 + 1, j0 + b_j1 + 1]) * cfg.cell_m
+                gap = np.maximum(np.maximum(lo - self._last_center, self._last_center - hi), 0.0)
+                if bound[lab] / (1.0 + max(float(np.hypot(*gap)) - 1e-3, 0.0)) <= best_score:
+                    continue
             sel = point_label == lab
-            cluster = pts[sel]
-            ys = cluster[:, 1]
+            cluster = pts[:, sel]
+            ys = cluster[1]
             y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
             height = float(y_hi - y_lo)
             if height < cfg.min_height_m or y_hi > cfg.max_height_m:
@@ -437,17 +473,15 @@ class PersonFinder:
             # Prefer many points, tall clusters (furniture is rarely taller than 1.2 m), shapes
             # narrower at the top than overall (a head, not the edge of a box or a table top),
             # and the previous person's position.
-            c = np.array([_quantiles(cluster[:, 0], (0.5,))[0], _quantiles(cluster[:, 2], (0.5,))[0]])
+            c = np.array([_quantiles(cluster[0], (0.5,))[0], _quantiles(cluster[2], (0.5,))[0]])
             narrow = _narrow_top(cluster, ys, y_hi, c, eye_xz)
             if narrow < cfg.min_narrow_top:
                 continue  # flat-topped: furniture (this also rejects a person lying down)
             score = counts[lab] * min(height, 1.8) ** 2 * narrow
-            if moved is not None:
-                share = (float(moved[lab] / counts[lab]) - cfg.motion_noise_share) / (
-                    cfg.motion_full_share - cfg.motion_noise_share)
-                score *= cfg.static_weight + (1.0 - cfg.static_weight) * min(max(share, 0.0), 1.0)
+            if moving is not None:
+                score *= weight[lab]
             if self._last_center is not None:
                 score /= 1.0 + np.linalg.norm(c - self._last_center)
             if score > best_score:
-                best, best_score = (sel, labels, int(lab), origin), score
+                best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin), score
         return best
