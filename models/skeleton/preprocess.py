@@ -55,6 +55,15 @@ class PreprocessConfig:
     motion_noise_share: float = 0.15
     motion_full_share: float = 0.5
     static_weight: float = 0.1
+    # Tracking: a frame is searched only in a window around the previous person grown by
+    # track_margin_m (at their depth) on each side; the whole image is searched when nobody was
+    # tracked, when the window holds no person or cuts the one found, and every
+    # track_full_search_s (another person or a missed performer is found within that time).
+    # A window is used only after a whole-image search agreed with the frame before it (the
+    # person within track_margin_m): a first pick of clutter is not kept by its window.
+    # None: every frame searches the whole image.
+    track_margin_m: float | None = 0.5
+    track_full_search_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -136,6 +145,7 @@ def _median(x: np.ndarray) -> float:
 
 
 _EYE4 = np.eye(4)
+STAT_POINTS = 2048
 
 
 def _is_identity(m: np.ndarray) -> bool:
@@ -178,12 +188,14 @@ class BackgroundModel:
             med = np.nanmedian(stack, axis=0)
         self.depth_mm = np.nan_to_num(med, nan=0.0).astype(np.uint16)
 
-    def foreground(self, depth_mm: np.ndarray, margin_m: float) -> np.ndarray:
-        """Bool mask of pixels clearly in front of the background (or where none was seen)."""
+    def foreground(self, depth_mm: np.ndarray, margin_m: float, at: tuple[slice, slice] = (slice(None), slice(None))
+                   ) -> np.ndarray:
+        """Bool mask of the pixels ``depth_mm[at]`` clearly in front of the background (or where
+        none was seen); ``at`` picks a strided crop so that only the pixels used are compared."""
+        d = depth_mm[at].astype(np.int32)
         if self.depth_mm is None:
-            return depth_mm > 0
-        bg = self.depth_mm.astype(np.int32)
-        d = depth_mm.astype(np.int32)
+            return d > 0
+        bg = self.depth_mm[at].astype(np.int32)
         return (d > 0) & ((bg == 0) | (d < bg - int(margin_m * 1000)))
 
 
@@ -193,6 +205,35 @@ class FinderCounters:
     found: int = 0
     nobody: int = 0
     no_floor: int = 0
+    tracked: int = 0  # frames searched only around the previous person
+    full_searches: int = 0  # frames searched over the whole image (first, periodic, lost or cut)
+
+
+@dataclass(frozen=True)
+class _Track:
+    """The previous person in the strided image: box rows r0..r1, cols c0..c1 (inclusive),
+    median depth (m), for the stride and image shape it was found at."""
+
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+    depth_m: float
+    key: tuple
+
+
+@dataclass
+class _Search:
+    """One search's result: world points (3, M), their strided pixels, the above-floor indices,
+    and the person among them (``_cluster``'s mask, label grid, label and grid origin)."""
+
+    world: np.ndarray
+    pixels: np.ndarray | None
+    above: np.ndarray
+    sel: np.ndarray
+    labels: np.ndarray
+    lab: int
+    origin: np.ndarray
 
 
 @dataclass
@@ -203,46 +244,59 @@ class PersonFinder:
     _floor_c2w: np.ndarray | None = None
     _last_center: np.ndarray | None = None
     _past_depth: deque = field(default_factory=lambda: deque(maxlen=64), repr=False)
-    _rays: np.ndarray | None = field(default=None, repr=False)
-    _rays_key: tuple | None = field(default=None, repr=False)
+    _rays: dict = field(default_factory=dict, repr=False)  # stride -> (camera key, rays)
+    _track: _Track | None = field(default=None, repr=False)
+    _full_search_ns: int | None = field(default=None, repr=False)
+    _confirmed: bool = field(default=False, repr=False)
 
     def world_points(self, frame: DepthFrame, stride: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """Valid, in-range world points (M, 3) float32 of a frame and the camera_to_world used
         (depth images read on ``stride``, default pixel_stride)."""
-        got = self._world(frame, stride or self.config.pixel_stride)
-        return None if got is None else (np.ascontiguousarray(got[0].T), got[2])
+        s = stride or self.config.pixel_stride
+        c2w = self._camera_to_world(frame, s)
+        return None if c2w is None else (np.ascontiguousarray(self._world(frame, s, c2w)[0].T), c2w)
 
-    def _world(self, frame: DepthFrame, s: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray] | None:
-        """(world points (3, M) float32, their flat pixel indices in the strided image or None
-        for a cloud frame, camera_to_world). Points are columns: the finder works on x, y and z
-        rows, where numpy's ops on (M, 3) rows pay an inner loop of three per point."""
-        cfg = self.config
+    def _camera_to_world(self, frame: DepthFrame, s: int) -> np.ndarray | None:
+        """The frame's camera_to_world, or when it is not known (identity extrinsics) the floor
+        found once by RANSAC and kept (the camera is static); None when no floor is seen."""
         c2w = np.asarray(frame.camera_to_world, np.float64)
-        if _is_identity(c2w):
-            # Unknown extrinsics: find the floor once and keep it (the camera is static).
-            if self._floor_c2w is None:
-                self._floor_c2w = estimate_floor(self._camera_points(frame, s))
-            if self._floor_c2w is None:
-                self.counters.no_floor += 1
-                return None
-            c2w = self._floor_c2w
+        if not _is_identity(c2w):
+            return c2w
+        if self._floor_c2w is None:
+            self._floor_c2w = estimate_floor(self._camera_points(frame, s))
+        if self._floor_c2w is None:
+            self.counters.no_floor += 1
+        return self._floor_c2w
+
+    def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(world points (3, M) float32, their flat pixel indices in the strided image or None
+        for a cloud frame), of the strided rows r0:r1 and cols c0:c1 of ``roi`` or of the whole
+        image. Points are columns: the finder works on x, y and z rows, where numpy's ops on
+        (M, 3) rows pay an inner loop of three per point."""
+        cfg = self.config
         if frame.depth_mm is None:
             r = c2w[:3, :3].astype(np.float32)
             world = self._camera_points(frame, s) @ r.T + c2w[:3, 3].astype(np.float32)
-            return np.ascontiguousarray(world.T), None, c2w
+            return np.ascontiguousarray(world.T), None
         # Dense path: world = z * (R K^-1 (u, v, 1)) + t with the rotated rays cached per camera,
         # so a frame costs a few vector ops over the strided image.
         depth = frame.depth_mm[::s, ::s]
-        z = depth.astype(np.float32) * np.float32(0.001)
+        rays = self._world_rays(frame.intrinsics, depth.shape, c2w, s)
+        r0, r1, c0, c1 = roi or (0, depth.shape[0], 0, depth.shape[1])
+        at = (slice(r0 * s, r1 * s, s), slice(c0 * s, c1 * s, s))
+        z = frame.depth_mm[at].astype(np.float32) * np.float32(0.001)
         valid = (z > cfg.min_range_m) & (z < cfg.max_range_m)
         if self.background is not None:
-            valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m)[::s, ::s]
+            valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m, at)
         idx = np.flatnonzero(valid)
-        rays = self._world_rays(frame.intrinsics, depth.shape, c2w, s)
+        zi = np.take(z.reshape(-1), idx)
+        if roi is not None:  # crop indices -> indices of the whole strided image
+            idx = (idx // (c1 - c0) + r0) * depth.shape[1] + idx % (c1 - c0) + c0
         world = np.take(rays, idx, axis=1)
-        world *= np.take(z.reshape(-1), idx)
+        world *= zi
         world += c2w[:3, 3].astype(np.float32)[:, None]
-        return world, idx, c2w
+        return world, idx
 
     def _camera_points(self, frame: DepthFrame, s: int) -> np.ndarray:
         """In-range camera-frame points (M, 3) float32 (strided depth image, or the frame's cloud)."""
@@ -251,7 +305,7 @@ class PersonFinder:
             depth = frame.depth_mm[::s, ::s]
             mask = depth > 0
             if self.background is not None:
-                mask &= self.background.foreground(frame.depth_mm, cfg.background_margin_m)[::s, ::s]
+                mask &= self.background.foreground(frame.depth_mm, cfg.background_margin_m, (slice(None, None, s),) * 2)
             k = frame.intrinsics
             v, u = np.nonzero(mask)
             z = depth[v, u].astype(np.float32) * np.float32(0.001)
@@ -264,14 +318,15 @@ class PersonFinder:
         return cam[(dist > cfg.min_range_m) & (dist < cfg.max_range_m)]
 
     def _world_rays(self, k: np.ndarray, shape: tuple[int, int], c2w: np.ndarray, s: int) -> np.ndarray:
-        """(3, h*w) float32 world directions (camera z = 1) of the strided pixels, cached."""
-        key = (np.asarray(k, np.float64).tobytes(), shape, s, c2w.tobytes())
-        if self._rays_key != key:
+        """(3, h*w) float32 world directions (camera z = 1) of the strided pixels, cached per
+        stride (the coarse search and the fine sample each read theirs)."""
+        key = (np.asarray(k, np.float64).tobytes(), shape, c2w.tobytes())
+        cached = self._rays.get(s)
+        if cached is None or cached[0] != key:
             v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64) * s
             d = np.stack([(u - k[0, 2]) / k[0, 0], (v - k[1, 2]) / k[1, 1], np.ones_like(u)])
-            self._rays = np.ascontiguousarray(c2w[:3, :3] @ d.reshape(3, -1), np.float32)
-            self._rays_key = key
-        return self._rays
+            cached = self._rays[s] = key, np.ascontiguousarray(c2w[:3, :3] @ d.reshape(3, -1), np.float32)
+        return cached[1]
 
     def find(self, frame: DepthFrame) -> PersonCloud | None:
         """The person in ``frame`` as a normalised sample, or None when nobody is in view."""
@@ -279,28 +334,44 @@ class PersonFinder:
         self.counters.frames += 1
         coarse = (cfg.coarse_stride is not None and frame.depth_mm is not None
                   and cfg.coarse_stride > cfg.pixel_stride)
-        got = self._world(frame, cfg.coarse_stride if coarse else cfg.pixel_stride)
-        if got is None:
+        s = cfg.coarse_stride if coarse else cfg.pixel_stride
+        c2w = self._camera_to_world(frame, s)
+        if c2w is None:
             return None
-        world, pixels, c2w = got
-        above = np.flatnonzero(world[1] > cfg.floor_margin_m)
+        depths = self._motion_reference(frame, s)
         scale = (cfg.coarse_stride / cfg.pixel_stride) ** 2 if coarse else 1.0
-        moving = self._moving_pixels(frame, cfg.coarse_stride if coarse else cfg.pixel_stride,
-                                     None if pixels is None else pixels[above])
-        found = self._cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points=max(int(cfg.min_points / scale), 10),
-                              moving=moving)
+        min_points = max(int(cfg.min_points / scale), 10)
+        roi = self._tracking_roi(frame, s)
+        found = None
+        if roi is not None:
+            self.counters.tracked += 1
+            found = self._search(frame, s, c2w, roi, depths, min_points)
+            if found is not None and self._cut_by(found, roi, frame.depth_mm.shape, s):
+                found = None  # the person reaches the window's edge: look at the whole image
+        if found is None:
+            if roi is not None:
+                self.counters.tracked -= 1
+            self.counters.full_searches += 1
+            self._full_search_ns = frame.t_ns
+            found = self._search(frame, s, c2w, None, depths, min_points)
         if found is None:
             self.counters.nobody += 1
+            self._track = None
             return None
-        sel, labels, lab, origin = found
-        person = np.take(world, above[sel], axis=1)
+        person_at = found.above[found.sel]
+        person = np.take(found.world, person_at, axis=1)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
+        if self._full_search_ns == frame.t_ns:
+            self._confirmed = (self._last_center is not None and cfg.track_margin_m is not None
+                               and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
         self._last_center = center
         to_world = _person_frame(center, c2w[:3, 3])
         rng = np.random.default_rng(frame.t_ns & 0xFFFFFFFF)
         n = cfg.num_points
+        if found.pixels is not None:
+            self._remember(frame, s, found.pixels[person_at])
         if coarse:
-            pts = self._fine_sample(frame, c2w, pixels[above[sel]], labels, lab, origin, rng)
+            pts = self._fine_sample(frame, c2w, found.pixels[person_at], found.labels, found.lab, found.origin, rng)
         else:
             pts = np.take(person, rng.choice(person.shape[1], n, replace=person.shape[1] < n), axis=1).T
         local = (pts - to_world[:3, 3].astype(np.float32)) @ to_world[:3, :3].astype(np.float32)
@@ -308,10 +379,61 @@ class PersonFinder:
         return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
                            count=int(person.shape[1] * scale), height_m=float(person[1].max()))
 
-    def _moving_pixels(self, frame: DepthFrame, s: int, at: np.ndarray | None) -> np.ndarray | None:
-        """Bool per flat index ``at`` of the strided depth image: depth changed since the newest
-        stored frame at least motion_lag_s older (None without a depth image or such a frame)."""
-        if frame.depth_mm is None or at is None:
+    def _search(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None,
+                depths: tuple[np.ndarray, np.ndarray] | None, min_points: int) -> _Search | None:
+        """The person among the points of ``roi`` (or of the whole image), or None."""
+        world, pixels = self._world(frame, s, c2w, roi)
+        above = np.flatnonzero(world[1] > self.config.floor_margin_m)
+        moving = None
+        if depths is not None and pixels is not None:
+            moving = self._moved(depths, pixels[above])
+        got = self._cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points=min_points, moving=moving)
+        return None if got is None else _Search(world, pixels, above, *got)
+
+    def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
+        """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by
+        track_margin_m at their depth; None for a whole-image search (no person tracked, or
+        not confirmed, a cloud frame, tracking off, or track_full_search_s since the last
+        whole-image search)."""
+        cfg, track = self.config, self._track
+        if cfg.track_margin_m is None or track is None or not self._confirmed or frame.depth_mm is None:
+            return None
+        depth_shape = frame.depth_mm[::s, ::s].shape
+        if track.key != (depth_shape, s) or self._full_search_ns is None:
+            return None
+        since = frame.t_ns - self._full_search_ns
+        if since < 0 or since >= cfg.track_full_search_s * 1e9:
+            return None
+        k = frame.intrinsics
+        grow_c = int(np.ceil(cfg.track_margin_m * k[0, 0] / (track.depth_m * s)))
+        grow_r = int(np.ceil(cfg.track_margin_m * k[1, 1] / (track.depth_m * s)))
+        return (max(track.r0 - grow_r, 0), min(track.r1 + 1 + grow_r, depth_shape[0]),
+                max(track.c0 - grow_c, 0), min(track.c1 + 1 + grow_c, depth_shape[1]))
+
+    def _remember(self, frame: DepthFrame, s: int, person_pixels: np.ndarray) -> None:
+        """Keep the person's strided-image box and median depth for the next frame's window."""
+        depth = frame.depth_mm[::s, ::s]
+        w = depth.shape[1]
+        rows, cols = person_pixels // w, person_pixels % w
+        z = np.take(depth.reshape(-1), person_pixels[::-(-len(person_pixels) // STAT_POINTS)]).astype(np.float32) * np.float32(0.001)
+        self._track = _Track(int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()),
+                             max(_median(z), self.config.min_range_m), (depth.shape, s))
+
+    def _cut_by(self, found: _Search, roi: tuple[int, int, int, int], shape: tuple[int, int], s: int) -> bool:
+        """Whether the person found in ``roi`` touches one of its edges inside the image (they
+        may go on beyond it)."""
+        h, w = -(-shape[0] // s), -(-shape[1] // s)
+        px = found.pixels[found.above[found.sel]]
+        rows, cols = px // w, px % w
+        r0, r1, c0, c1 = roi
+        return bool((r0 > 0 and rows.min() <= r0) or (r1 < h and rows.max() >= r1 - 1)
+                    or (c0 > 0 and cols.min() <= c0) or (c1 < w and cols.max() >= c1 - 1))
+
+    def _motion_reference(self, frame: DepthFrame, s: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(this frame's strided depth image, contiguous; that of the newest stored frame at
+        least motion_lag_s older), or None without a depth image or such a frame. Stores this
+        frame's."""
+        if frame.depth_mm is None:
             return None
         cfg = self.config
         depth = frame.depth_mm[::s, ::s]
@@ -322,20 +444,27 @@ class PersonFinder:
         while len(past) > 1 and past[1][0] <= frame.t_ns - lag:
             past.popleft()  # keep one frame at least motion_lag_s old, and the newer ones
         ref = past[0][1] if past else None
-        depth = depth.copy()  # contiguous: kept for later frames, and flat-indexed below
+        depth = depth.copy()  # contiguous: flat-indexed here and by later frames
         past.append((frame.t_ns, depth))
-        if ref is None:
-            return None
-        # Only at the points asked about (those above the floor): a third of the image or less.
-        z = depth.reshape(-1)[at].astype(np.float32) * np.float32(0.001)
-        z_ref = ref.reshape(-1)[at].astype(np.float32) * np.float32(0.001)
+        return None if ref is None else (depth, ref)
+
+    def _moved(self, depths: tuple[np.ndarray, np.ndarray], at: np.ndarray) -> np.ndarray:
+        """Bool per flat index ``at`` of the strided depth image: depth changed since the
+        reference of ``_motion_reference`` (only at the points asked about, those above the
+        floor: a third of the image or less)."""
+        cfg = self.config
+        depth, ref = depths
+        z = np.take(depth.reshape(-1), at).astype(np.float32) * np.float32(0.001)
+        z_ref = np.take(ref.reshape(-1), at).astype(np.float32) * np.float32(0.001)
         return (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
 
     def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, person_idx: np.ndarray, labels: np.ndarray,
                      lab: int, origin: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """num_points world points (N, 3) drawn uniformly without replacement from the person's
-        pixels at pixel_stride: the pixels of the coarse person's image box are visited in random
-        order and kept when their point falls in the person's cells (above the floor)."""
+        pixels at pixel_stride: the valid pixels of the coarse person's image box whose points
+        fall in the person's cells (above the floor). A random 4 x num_points of the box's
+        pixels are tried first (the person fills half a box or more); all of them when those
+        hold too few."""
         cfg = self.config
         cs, s = cfg.coarse_stride, cfg.pixel_stride
         h, w = frame.depth_mm.shape
@@ -343,39 +472,35 @@ class PersonFinder:
         rows, cols = (person_idx // wc) * cs, (person_idx % wc) * cs
         r0, r1 = max(rows.min() - cs, 0) // s * s, min(rows.max() + cs + 1, h)
         c0, c1 = max(cols.min() - cs, 0) // s * s, min(cols.max() + cs + 1, w)
-        crop = frame.depth_mm[r0:r1:s, c0:c1:s]
-        z = crop.astype(np.float32) * np.float32(0.001)
+        at = (slice(r0, r1, s), slice(c0, c1, s))
+        z = frame.depth_mm[at].astype(np.float32) * np.float32(0.001)
         valid = (z > cfg.min_range_m) & (z < cfg.max_range_m)
         if self.background is not None:
-            valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m)[r0:r1:s, c0:c1:s]
+            valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m, at)
         cand = np.flatnonzero(valid)
-        rng.shuffle(cand)
-        n, cells = cfg.num_points, labels.shape[0]
-        kept: list[np.ndarray] = []
-        total, start, chunk = 0, 0, 3 * n
-        k = frame.intrinsics
-        r = c2w[:3, :3].astype(np.float32)
-        while total < n and start < len(cand):
-            idx = cand[start:start + chunk]
-            start += chunk
-            chunk *= 2
-            v = (idx // crop.shape[1]) * s + r0
-            u = (idx % crop.shape[1]) * s + c0
-            zi = z.reshape(-1)[idx]
-            cam = np.stack([(u - k[0, 2]) / k[0, 0] * zi, (v - k[1, 2]) / k[1, 1] * zi, zi], 1).astype(np.float32)
-            pts = cam @ r.T + c2w[:3, 3].astype(np.float32)
-            i = np.floor((pts[:, 0] - origin[0]) / cfg.cell_m).astype(np.int64)
-            j = np.floor((pts[:, 2] - origin[1]) / cfg.cell_m).astype(np.int64)
-            ok = (i >= 0) & (i < cells) & (j >= 0) & (j < cells) & (pts[:, 1] > cfg.floor_margin_m)
+        n = cfg.num_points
+        rays = self._world_rays(frame.intrinsics, frame.depth_mm[::s, ::s].shape, c2w, s)
+        w_s, crop_w = -(-w // s), z.shape[1]
+
+        def person_points(idx: np.ndarray) -> np.ndarray:
+            """World points (3, K) of crop pixels ``idx`` that belong to the person."""
+            pts = np.take(rays, (idx // crop_w + r0 // s) * w_s + idx % crop_w + c0 // s, axis=1)
+            pts *= np.take(z.reshape(-1), idx)
+            pts += c2w[:3, 3].astype(np.float32)[:, None]
+            cells = labels.shape[0]
+            i = np.floor((pts[0] - origin[0]) / cfg.cell_m).astype(np.int64)
+            j = np.floor((pts[2] - origin[1]) / cfg.cell_m).astype(np.int64)
+            ok = (i >= 0) & (i < cells) & (j >= 0) & (j < cells) & (pts[1] > cfg.floor_margin_m)
             ok[ok] = labels[j[ok], i[ok]] == lab
-            kept.append(pts[ok])
-            total += int(ok.sum())
-        pts = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
-        if len(pts) >= n:
-            return pts[:n]
-        if len(pts) == 0:  # cannot happen for a found person; keep the contract anyway
-            pts = np.zeros((1, 3), np.float32)
-        return pts[rng.choice(len(pts), n, replace=True)]
+            return pts[:, ok]
+
+        first = person_points(cand[rng.choice(len(cand), min(len(cand), 4 * n), replace=False)])
+        if first.shape[1] >= n:
+            return first[:, :n].T
+        pts = person_points(cand)
+        if pts.shape[1] == 0:  # cannot happen for a found person; keep the contract anyway
+            pts = np.zeros((3, 1), np.float32)
+        return pts[:, rng.choice(pts.shape[1], n, replace=pts.shape[1] < n)].T
 
     def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int, moving: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
@@ -465,6 +590,9 @@ class PersonFinder:
                     continue
             sel = point_label == lab
             cluster = pts[:, sel]
+            # Its shape statistics from at most ~2,000 of its points (every k-th: a close-up
+            # person has ten thousand, and quantiles of a regular subsample are as telling).
+            cluster = cluster[:, ::-(-cluster.shape[1] // STAT_POINTS)]
             ys = cluster[1]
             y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
             height = float(y_hi - y_lo)
