@@ -129,7 +129,7 @@ def joint_confidence(joints: np.ndarray, points: np.ndarray, radius_m: float = 0
     # |p - j|^2 = |p|^2 - 2 p.j + |j|^2: one (22, N) matmul instead of a (22, N, 3) difference.
     d2 = (p * p).sum(1)[None, :] - 2.0 * (j @ p.T) + (j * j).sum(1)[:, None]
     support = (d2 < radius_m * radius_m).sum(axis=1)
-    return np.clip(support / float(full_support), 0.0, 1.0).astype(np.float32)
+    return np.minimum(support / float(full_support), 1.0).astype(np.float32)  # support >= 0
 
 
 __all__ = ["OneEuroFilter", "BoneLengthKeeper", "FlipGuard", "joint_confidence", "NUM_JOINTS"]

@@ -73,13 +73,13 @@ def sample_history(times_s: np.ndarray, joints_world: np.ndarray, confidence: np
     t = np.asarray(times_s, np.float64)
     q = t_now_s - np.arange(window) / fps
     hi = np.searchsorted(t, q, side="left")
-    np.clip(hi, 0, len(t) - 1, out=hi)
+    np.minimum(hi, len(t) - 1, out=hi)  # (np.minimum, not np.clip: a fifth of the overhead)
     before = q <= t[0]
     lo = np.where(before, 0, np.maximum(hi - 1, 0))
     t_lo, t_hi = t[lo], t[hi]
     span = t_hi - t_lo
     # Interpolation weight of the later observation (0 before the first one: repeat it).
-    w = np.clip((q - t_lo) / np.where(span > 0, span, 1.0), 0.0, 1.0)
+    w = np.minimum(np.maximum((q - t_lo) / np.where(span > 0, span, 1.0), 0.0), 1.0)
     w[(span <= 0) & ~before] = 1.0
     w[before] = 0.0
     j = (1.0 - w)[:, None, None] * joints_world[lo] + w[:, None, None] * joints_world[hi]
@@ -130,35 +130,34 @@ class TemporalRefiner:
         return self.lag / self.fps
 
     def reset(self) -> None:
-        # History as preallocated arrays, oldest first: enough for the window, plus slack for
-        # faster cameras and dropped frames (the oldest entries go first when it is full).
+        # History as preallocated arrays, oldest first, in [_start, _end): enough for the window,
+        # plus slack for faster cameras and dropped frames. Dropping moves _start; the live part
+        # is moved to the front only when the end is reached (not on every frame).
         size = 8 * (self.window + self.lag)
         self._times = np.zeros(size, np.int64)
         self._joints = np.zeros((size, NUM_JOINTS, 3))
         self._conf = np.zeros((size, NUM_JOINTS))
-        self._count = 0
+        self._start = self._end = 0
         self._emitted: int | None = None
 
     def _append(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray) -> None:
         """Add an observation; drop what the window can no longer reach (all but one entry older
         than that, at least two kept) and, when full, the oldest."""
-        n = self._count
-        if n == len(self._times):
-            self._drop(1)
-            n -= 1
-        self._times[n], self._joints[n], self._conf[n] = t_ns, joints_world, confidence
-        n = self._count = n + 1
-        reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps
+        if self._end == len(self._times):
+            a, b = self._start, self._end
+            if a == 0:  # full: the oldest goes
+                a = 1
+            for arr in (self._times, self._joints, self._conf):
+                arr[:b - a] = arr[a:b]
+            self._start, self._end = 0, b - a
+        e = self._end
+        self._times[e], self._joints[e], self._conf[e] = t_ns, joints_world, confidence
+        self._end = e = e + 1
+        n = e - self._start
         if n > 2:
-            stale = int(np.searchsorted(self._times[1:n], t_ns - reach_ns, side="left"))
-            self._drop(min(stale, n - 2))
-
-    def _drop(self, k: int) -> None:
-        if k > 0:
-            n = self._count
-            for a in (self._times, self._joints, self._conf):
-                a[:n - k] = a[k:n]
-            self._count = n - k
+            reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps
+            stale = int(np.searchsorted(self._times[self._start + 1:e], t_ns - reach_ns, side="left"))
+            self._start += min(stale, n - 2)
 
     def matches(self, regressor_path: Path) -> bool:
         """Whether this model was trained on the outputs of that regressor file."""
@@ -168,21 +167,22 @@ class TemporalRefiner:
     def __call__(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray,
                  to_world: np.ndarray) -> RefinedSkeleton | None:
         t_ns = int(t_ns)
-        if self._count and t_ns <= self._times[self._count - 1]:
+        if self._end > self._start and t_ns <= self._times[self._end - 1]:
             self.reset()  # time went backwards (a new replay): start over
         self._append(t_ns, joints_world, confidence)
-        n = self._count
-        times = self._times[:n]
+        live = slice(self._start, self._end)
+        times = self._times[live]
         # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
         k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
         self._emitted = int(times[k])
         anchor_s = times[k] * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
-        win = sample_history(times * 1e-9, self._joints[:n], self._conf[:n], anchor_s, to_world, self.window, self.fps)
+        win = sample_history(times * 1e-9, self._joints[live], self._conf[live], anchor_s, to_world, self.window,
+                             self.fps)
         local = self.session.run(None, {self._input: win.features()[None]})[0][0].astype(np.float64)
         return RefinedSkeleton(t_ns=int(times[k]), joints=local @ to_world[:3, :3].T + to_world[:3, 3],
-                               confidence=self._conf[k].copy())
+                               confidence=self._conf[self._start + k].copy())
 
 
 def file_sha256(path: Path) -> str:
