@@ -93,30 +93,28 @@ def two_bone_ik(
     ab = b - a
     cb = c - b
     ac = c - a
-    l_ab = np.linalg.norm(ab, axis=-1)
-    l_cb = np.linalg.norm(cb, axis=-1)
-    l_at = np.linalg.norm(target - a, axis=-1)
+    l_ab = np.sqrt(dot(ab, ab))
+    l_cb = np.sqrt(dot(cb, cb))
+    l_ac = np.sqrt(dot(ac, ac))
+    l_at = np.sqrt(dot(target - a, target - a))
     reach = l_ab + l_cb
-    l_at = np.clip(l_at, np.abs(l_ab - l_cb) + 1e-4 * reach, reach * (1.0 - 1e-4))
-
-    def angle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.arccos(np.clip(np.sum(normalize(x) * normalize(y), axis=-1), -1.0, 1.0))
-
-    # Interior angles now and wanted (law of cosines); the bend plane's normal rotates both.
-    ac_ab_0 = angle(ac, ab)
-    ba_bc_0 = angle(-ab, cb)
-    ac_ab_1 = np.arccos(np.clip((l_cb**2 - l_ab**2 - l_at**2) / (-2.0 * l_ab * l_at), -1.0, 1.0))
-    ba_bc_1 = np.arccos(np.clip((l_at**2 - l_ab**2 - l_cb**2) / (-2.0 * l_ab * l_cb), -1.0, 1.0))
+    l_at = np.minimum(np.maximum(l_at, np.abs(l_ab - l_cb) + 1e-4 * reach), reach * (1.0 - 1e-4))
+    # Interior angles now (from the known lengths) and wanted (law of cosines), at the root and
+    # at the middle joint, stacked (2, ...): one arccos for all four; the bend plane's normal
+    # rotates both.
+    cos_now = np.stack([dot(ac, ab) / np.maximum(l_ac * l_ab, _EPS), -dot(ab, cb) / np.maximum(l_ab * l_cb, _EPS)])
+    cos_want = np.stack([(l_cb**2 - l_ab**2 - l_at**2) / (-2.0 * l_ab * l_at),
+                         (l_at**2 - l_ab**2 - l_cb**2) / (-2.0 * l_ab * l_cb)])
+    turn = np.arccos(np.minimum(np.maximum(np.stack([cos_want, cos_now]), -1.0), 1.0))
     plane = cross(ac, ab)
-    plane_n = np.linalg.norm(plane, axis=-1)
+    plane_n = np.sqrt(dot(plane, plane))
     # A straight limb has no plane: bend about the hinge hint (its sign chosen to match
     # cross(ac, ab) of a naturally flexed limb).
     straight = plane_n < 1e-6 * np.maximum(l_ab * (l_ab + l_cb), _EPS)
     hint = np.asarray(bend_hint, dtype=np.float64)
-    hint = hint - np.sum(hint * ab, axis=-1, keepdims=True) * ab / np.maximum(l_ab**2, _EPS)[..., None]
+    hint = hint - dot(hint, ab)[..., None] * ab / np.maximum(l_ab**2, _EPS)[..., None]
     axis0 = np.where(straight[..., None], -normalize(hint), plane / np.maximum(plane_n, _EPS)[..., None])
-    r0 = axis_angle_matrix(axis0, ac_ab_1 - ac_ab_0)
-    r1 = axis_angle_matrix(axis0, ba_bc_1 - ba_bc_0)
+    r0, r1 = axis_angle_matrix(axis0, turn[0] - turn[1])
     # The two bends keep the end on the old a-c line (up to rounding); swing it onto the target.
     end = ab + np.einsum("...ij,...j->...i", r1, cb)
     r2 = rotation_between(np.einsum("...ij,...j->...i", r0, end), target - a)

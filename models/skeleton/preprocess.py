@@ -145,7 +145,6 @@ def _median(x: np.ndarray) -> float:
 
 
 _EYE4 = np.eye(4)
-STAT_POINTS = 2048
 
 
 def _is_identity(m: np.ndarray) -> bool:
@@ -415,7 +414,8 @@ class PersonFinder:
         depth = frame.depth_mm[::s, ::s]
         w = depth.shape[1]
         rows, cols = person_pixels // w, person_pixels % w
-        z = np.take(depth.reshape(-1), person_pixels[::-(-len(person_pixels) // STAT_POINTS)]).astype(np.float32) * np.float32(0.001)
+        # The median depth of at most ~2,000 of them (every k-th) is as good for a margin.
+        z = np.take(depth.reshape(-1), person_pixels[::-(-len(person_pixels) // 2048)]).astype(np.float32) * np.float32(0.001)
         self._track = _Track(int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()),
                              max(_median(z), self.config.min_range_m), (depth.shape, s))
 
@@ -461,10 +461,8 @@ class PersonFinder:
     def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, person_idx: np.ndarray, labels: np.ndarray,
                      lab: int, origin: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """num_points world points (N, 3) drawn uniformly without replacement from the person's
-        pixels at pixel_stride: the valid pixels of the coarse person's image box whose points
-        fall in the person's cells (above the floor). A random 4 x num_points of the box's
-        pixels are tried first (the person fills half a box or more); all of them when those
-        hold too few."""
+        pixels at pixel_stride: the pixels of the coarse person's image box are visited in random
+        order and kept when their point falls in the person's cells (above the floor)."""
         cfg = self.config
         cs, s = cfg.coarse_stride, cfg.pixel_stride
         h, w = frame.depth_mm.shape
@@ -478,29 +476,31 @@ class PersonFinder:
         if self.background is not None:
             valid &= self.background.foreground(frame.depth_mm, cfg.background_margin_m, at)
         cand = np.flatnonzero(valid)
-        n = cfg.num_points
+        rng.shuffle(cand)
+        n, cells = cfg.num_points, labels.shape[0]
         rays = self._world_rays(frame.intrinsics, frame.depth_mm[::s, ::s].shape, c2w, s)
         w_s, crop_w = -(-w // s), z.shape[1]
-
-        def person_points(idx: np.ndarray) -> np.ndarray:
-            """World points (3, K) of crop pixels ``idx`` that belong to the person."""
+        kept: list[np.ndarray] = []
+        total, start, chunk = 0, 0, 3 * n
+        while total < n and start < len(cand):
+            idx = cand[start:start + chunk]
+            start += chunk
+            chunk *= 2
             pts = np.take(rays, (idx // crop_w + r0 // s) * w_s + idx % crop_w + c0 // s, axis=1)
             pts *= np.take(z.reshape(-1), idx)
             pts += c2w[:3, 3].astype(np.float32)[:, None]
-            cells = labels.shape[0]
             i = np.floor((pts[0] - origin[0]) / cfg.cell_m).astype(np.int64)
             j = np.floor((pts[2] - origin[1]) / cfg.cell_m).astype(np.int64)
             ok = (i >= 0) & (i < cells) & (j >= 0) & (j < cells) & (pts[1] > cfg.floor_margin_m)
             ok[ok] = labels[j[ok], i[ok]] == lab
-            return pts[:, ok]
-
-        first = person_points(cand[rng.choice(len(cand), min(len(cand), 4 * n), replace=False)])
-        if first.shape[1] >= n:
-            return first[:, :n].T
-        pts = person_points(cand)
-        if pts.shape[1] == 0:  # cannot happen for a found person; keep the contract anyway
-            pts = np.zeros((3, 1), np.float32)
-        return pts[:, rng.choice(pts.shape[1], n, replace=pts.shape[1] < n)].T
+            kept.append(pts[:, ok])
+            total += int(ok.sum())
+        pts = np.concatenate(kept, axis=1).T if kept else np.zeros((0, 3), np.float32)
+        if len(pts) >= n:
+            return pts[:n]
+        if len(pts) == 0:  # cannot happen for a found person; keep the contract anyway
+            pts = np.zeros((1, 3), np.float32)
+        return pts[rng.choice(len(pts), n, replace=True)]
 
     def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int, moving: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
@@ -590,9 +590,6 @@ class PersonFinder:
                     continue
             sel = point_label == lab
             cluster = pts[:, sel]
-            # Its shape statistics from at most ~2,000 of its points (every k-th: a close-up
-            # person has ten thousand, and quantiles of a regular subsample are as telling).
-            cluster = cluster[:, ::-(-cluster.shape[1] // STAT_POINTS)]
             ys = cluster[1]
             y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
             height = float(y_hi - y_lo)
