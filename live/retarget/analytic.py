@@ -83,6 +83,7 @@ class RestInfo:
     rest_joints: np.ndarray  # (22, 3)
     offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
     frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
+    framed_rest_t: np.ndarray  # (F, 3, 3) those frames transposed, in _FRAMED order
     swing_dirs: np.ndarray  # (22, 3) rest unit direction to the only child (zero elsewhere)
     swing_units: np.ndarray  # swing_dirs normalised again, as rotation_between would per frame
     limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
@@ -106,7 +107,8 @@ class RestInfo:
         hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
         lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
-        return cls(rest, rest_offsets(rest), frames, swing, normalize(swing), dirs, hinges, cross(dirs, hinges),
+        framed_rest_t = np.stack([frames[j].T for j in _FRAMED])
+        return cls(rest, rest_offsets(rest), frames, framed_rest_t, swing, normalize(swing), dirs, hinges, cross(dirs, hinges),
                    dot(lower, hinges))
 
 
@@ -143,7 +145,7 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _LevelPlan:
-    """What ``solve_globals`` does at one tree level (index arrays built once, not per frame)."""
+    """What ``solve_globals`` does at one step (index arrays built once, not per frame)."""
 
     framed: tuple[int, ...]  # joints posed from two child directions (_FRAMED)
     js: np.ndarray  # swing joints
@@ -154,9 +156,22 @@ class _LevelPlan:
     limb_joints: tuple[np.ndarray, np.ndarray, np.ndarray]  # (root, middle, end) of those limbs
 
 
+def _steps() -> np.ndarray:
+    """(22,) the step of ``solve_globals`` at which each joint is solved: framed joints need no
+    parent, so they come first (step 0) and a swing joint comes one step after its parent. The
+    spine3 frame starts the arms and neck at step 0 beside the pelvis, so the tree takes four
+    steps instead of its eight levels."""
+    step = np.zeros(NUM_JOINTS, dtype=np.int64)
+    for j in range(1, NUM_JOINTS):  # parents come before their children
+        step[j] = 0 if j in _FRAMED else step[PARENTS[j]] + 1
+    return step
+
+
 def _plan() -> tuple[_LevelPlan, ...]:
     plan = []
-    for level in LEVELS:
+    steps = _steps()
+    for k in range(steps.max() + 1):
+        level = np.flatnonzero(steps == k)
         js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
         ks = np.array([_LIMB_OF.get(int(j), -1) for j in js], dtype=np.int64)
         sel = np.flatnonzero(ks >= 0)
@@ -167,7 +182,10 @@ def _plan() -> tuple[_LevelPlan, ...]:
     return tuple(plan)
 
 
+_FRAMED_JOINTS = np.array(list(_FRAMED), dtype=np.int64)
+_FRAMED_IDX = np.array(list(_FRAMED.values()), dtype=np.int64)  # (F, 4): a_from, a_to, b_from, b_to
 _PLAN = _plan()
+assert _PLAN[0].framed == tuple(int(j) for j in _FRAMED_JOINTS)
 _LEAVES = np.array([j for j in range(NUM_JOINTS) if not CHILDREN[j]], dtype=np.int64)
 
 
@@ -183,10 +201,10 @@ def solve_globals(
     glob = np.empty((n, NUM_JOINTS, 3, 3))
     prev = np.zeros(len(LIMBS)) if twist is None else np.array(twist, dtype=np.float64)
     for step in _PLAN:
-        for j in step.framed:
-            a0, a1, b0, b1 = _FRAMED[j]
+        if step.framed:
+            a0, a1, b0, b1 = _FRAMED_IDX.T
             f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
-            glob[:, j] = f @ info.frames[j].T
+            glob[:, _FRAMED_JOINTS] = f @ info.framed_rest_t
         js, ps, cs, sel, ks = step.js, step.ps, step.cs, step.sel, step.ks
         if not len(js):
             continue

@@ -59,8 +59,9 @@ class PreprocessConfig:
     # track_margin_m (at their depth) on each side; the whole image is searched when nobody was
     # tracked, when the window holds no person or cuts the one found, and every
     # track_full_search_s (another person or a missed performer is found within that time).
-    # A window is used only after a whole-image search agreed with the frame before it (the
-    # person within track_margin_m): a first pick of clutter is not kept by its window.
+    # A window is used only once the motion cue compares frames motion_lag_s apart and after a
+    # whole-image search agreed with the frame before it (the person within track_margin_m): a
+    # first pick of clutter is not kept by its window.
     # None: every frame searches the whole image.
     track_margin_m: float | None = 0.5
     track_full_search_s: float = 1.0
@@ -247,6 +248,7 @@ class PersonFinder:
     _track: _Track | None = field(default=None, repr=False)
     _full_search_ns: int | None = field(default=None, repr=False)
     _confirmed: bool = field(default=False, repr=False)
+    _cue_ready: bool = field(default=False, repr=False)  # the motion cue compares motion_lag_s apart
 
     def world_points(self, frame: DepthFrame, stride: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """Valid, in-range world points (M, 3) float32 of a frame and the camera_to_world used
@@ -392,10 +394,11 @@ class PersonFinder:
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
         """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by
         track_margin_m at their depth; None for a whole-image search (no person tracked, or
-        not confirmed, a cloud frame, tracking off, or track_full_search_s since the last
-        whole-image search)."""
+        not confirmed, no full motion cue yet, a cloud frame, tracking off, or
+        track_full_search_s since the last whole-image search)."""
         cfg, track = self.config, self._track
-        if cfg.track_margin_m is None or track is None or not self._confirmed or frame.depth_mm is None:
+        if (cfg.track_margin_m is None or track is None or not self._confirmed or not self._cue_ready
+                or frame.depth_mm is None):
             return None
         depth_shape = frame.depth_mm[::s, ::s].shape
         if track.key != (depth_shape, s) or self._full_search_ns is None:
@@ -444,6 +447,7 @@ class PersonFinder:
         while len(past) > 1 and past[1][0] <= frame.t_ns - lag:
             past.popleft()  # keep one frame at least motion_lag_s old, and the newer ones
         ref = past[0][1] if past else None
+        self._cue_ready = bool(past) and frame.t_ns - past[0][0] >= lag
         depth = depth.copy()  # contiguous: flat-indexed here and by later frames
         past.append((frame.t_ns, depth))
         return None if ref is None else (depth, ref)
