@@ -17,6 +17,9 @@ from live.rotations import quat_to_matrix
 from live.skeleton import PARENTS, rest_offsets
 
 
+# OpenBLAS runs a GEMM on one thread when m x n x k <= 65536 x GEMM_MULTITHREAD_THRESHOLD (4).
+_BLAS_SINGLE_THREAD_MNK = 4 * 65536
+
 _LAYOUT_LOCK = threading.Lock()
 _LAYOUTS: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(array) -> (array, its float32 transpose)
 
@@ -99,10 +102,16 @@ def skin(rest_vertices: np.ndarray, weights: np.ndarray, transforms: np.ndarray)
     # (column, row) x V so that applying them is four fused multiply-adds on contiguous rows.
     coeffs = np.ascontiguousarray(g.transpose(0, 3, 2, 1)).reshape(t_count * 12, j_count)
     if t_count == 1:
-        # One frame (the live case): einsum's own loop, not BLAS. A 12 x 22 by 22 x V product is
-        # too small for BLAS threads, which on a busy 2-core machine cost 20x (83 instead of
-        # 1,700 frames/s) unless the caller pinned BLAS to one thread; einsum never threads.
-        blended = np.einsum("kj,jv->kv", coeffs, wt).reshape(1, 4, 3, -1)
+        # One frame (the live case): BLAS on column blocks small enough that OpenBLAS never
+        # threads them (m n k <= 4 x 65536). A 12 x 22 by 22 x V product is too small for BLAS
+        # threads, which on a busy 2-core machine cost 20x (83 instead of 1,700 frames/s); the
+        # blocks run single-threaded at a third of einsum's own loop (0.13 against 0.34 ms for
+        # 7k vertices, benchmarks/bench_lbs.py).
+        blended = np.empty((12, wt.shape[1]), np.float32)
+        block = max(_BLAS_SINGLE_THREAD_MNK // (12 * j_count), 1)
+        for a in range(0, wt.shape[1], block):
+            np.matmul(coeffs, wt[:, a:a + block], out=blended[:, a:a + block])
+        blended = blended.reshape(1, 4, 3, -1)
     else:
         blended = (coeffs @ wt).reshape(t_count, 4, 3, -1)
     out = blended[:, 0] * vt[0] + blended[:, 1] * vt[1] + blended[:, 2] * vt[2] + blended[:, 3]
