@@ -64,7 +64,8 @@ class ContactDetector:
         Returns (2,) bool contacts. The first frame after reset has no speed and counts as still.
         """
         ankles = np.asarray(ankles, dtype=np.float64)
-        speed = np.zeros(2) if self._last is None else np.linalg.norm(ankles - self._last, axis=-1) / max(dt, 1e-6)
+        step = None if self._last is None else ankles - self._last
+        speed = np.zeros(2) if step is None else np.sqrt((step * step).sum(-1)) / max(dt, 1e-6)
         self._last = ankles.copy()
         height = ankles[:, 1] - self.rest_height
         start = (height < self.h_on) & (speed < self.v_on)
@@ -102,11 +103,11 @@ class FootLock:
         self.lock[fresh] = ankles[fresh]
         # A lock the source keeps dragging away follows it at max_slide (pivots, slides).
         gap = self.lock - ankles
-        dist = np.linalg.norm(gap, axis=-1)
+        dist = np.sqrt((gap * gap).sum(-1))
         far = dist > self.max_slide
         if np.any(far):
             self.lock[far] = ankles[far] + gap[far] * (self.max_slide / dist[far])[:, None]
-        self.weight = np.clip(self.weight + np.where(contact, self.blend, -self.blend), 0.0, 1.0)
+        self.weight = np.minimum(np.maximum(self.weight + np.where(contact, self.blend, -self.blend), 0.0), 1.0)
         w = self.weight * self.weight * (3.0 - 2.0 * self.weight)  # smoothstep: no velocity jump
         return ankles + w[:, None] * (self.lock - ankles)
 
