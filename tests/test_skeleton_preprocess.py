@@ -151,3 +151,41 @@ def test_joint_confidence_counts_points_within_the_radius():
     pts = rng.normal(JOINTS[12], 0.15, (256, 3)).astype(np.float32)
     near = (np.linalg.norm(pts[None].astype(np.float64) - JOINTS[:, None], axis=-1) < 0.12).sum(1)
     assert np.array_equal(joint_confidence(JOINTS, pts), np.clip(near / 6.0, 0, 1).astype(np.float32))
+
+
+def walking_frames(n: int, speed_m_s: float = 0.6, jump_at: int | None = None, jump_m: float = 0.0):
+    """n frames at 30 fps of the capsule person walking along x in front of FRONT (a jump of
+    jump_m along x from frame jump_at on)."""
+    out = []
+    for k in range(n):
+        x = -0.4 + speed_m_s * k / 30.0 + (jump_m if jump_at is not None and k >= jump_at else 0.0)
+        out.append(frame(FRONT, mesh=capsule_body(JOINTS + [x, 0.0, 0.0]), t_ns=1_000_000_000 + k * 33_333_333,
+                         seed=k))
+    return out
+
+
+def test_tracking_window_finds_what_the_whole_image_search_finds():
+    frames = walking_frames(45)
+    tracking, whole = PersonFinder(), PersonFinder(PreprocessConfig(track_margin_m=None))
+    for f in frames:
+        a, b = tracking.find(f), whole.find(f)
+        assert a is not None and b is not None
+        np.testing.assert_array_equal(a.to_world, b.to_world)
+        np.testing.assert_allclose(a.points, b.points, atol=1e-6)
+    c = tracking.counters
+    # Whole-image searches: the first frames (no 0.3 s motion cue yet), then one per second.
+    assert c.tracked + c.full_searches == c.frames == 45
+    assert c.tracked >= 30 and 9 <= c.full_searches <= 14
+    assert whole.counters.tracked == 0 and whole.counters.full_searches == 45
+
+
+def test_tracking_finds_a_performer_who_left_the_window():
+    frames = walking_frames(24, jump_at=20, jump_m=1.2)
+    finder = PersonFinder()
+    for f in frames[:20]:
+        finder.find(f)
+    assert finder.counters.tracked > 0
+    full = finder.counters.full_searches
+    cloud = finder.find(frames[20])  # the window around the old place holds nobody now
+    assert cloud is not None and abs(cloud.to_world[0, 3] - (-0.4 + 0.6 * 20 / 30 + 1.2)) < 0.15
+    assert finder.counters.full_searches == full + 1
