@@ -414,7 +414,7 @@ class PersonFinder:
 
     def _remember(self, frame: DepthFrame, s: int, person_pixels: np.ndarray) -> None:
         """Keep the person's strided-image box and median depth for the next frame's window."""
-        depth = frame.depth_mm[::s, ::s]
+        depth = self._past_depth[-1][1]  # this frame's strided depth image, contiguous
         w = depth.shape[1]
         rows, cols = person_pixels // w, person_pixels % w
         # The median depth of at most ~2,000 of them (every k-th) is as good for a margin.
