@@ -155,8 +155,9 @@ def _is_identity(m: np.ndarray) -> bool:
 
 def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, eye_xz: np.ndarray,
                 band_m: float = 0.12) -> float:
-    """Person-likeness in (0.1, 1] of a cluster's points (3, M): 1.2 minus the width of the cluster's top band over its whole
-    width, both measured across the line of sight from ``eye_xz`` to the cluster's centre ``c``.
+    """Person-likeness in (0.1, 1] of a cluster's points (3, M): 1.2 minus the width of its top
+    band over its whole width, both measured across the line of sight from ``eye_xz`` to the
+    cluster's centre ``c``.
     A box, a table or a wall edge is as wide at the top as overall (~0.1); a person is topped
     by a head, or by hands (~0.2-0.8)."""
     d = c - np.asarray(eye_xz, np.float32)
@@ -234,6 +235,11 @@ class _Search:
     labels: np.ndarray
     lab: int
     origin: np.ndarray
+
+    @property
+    def person_at(self) -> np.ndarray:
+        """Indices of the person's points in ``world`` (and ``pixels``)."""
+        return self.above[self.sel]
 
 
 @dataclass
@@ -343,26 +349,24 @@ class PersonFinder:
         scale = (cfg.coarse_stride / cfg.pixel_stride) ** 2 if coarse else 1.0
         min_points = max(int(cfg.min_points / scale), 10)
         roi = self._tracking_roi(frame, s)
-        found = None
-        if roi is not None:
-            self.counters.tracked += 1
-            found = self._search(frame, s, c2w, roi, depths, min_points)
-            if found is not None and self._cut_by(found, roi, frame.depth_mm.shape, s):
-                found = None  # the person reaches the window's edge: look at the whole image
-        if found is None:
-            if roi is not None:
-                self.counters.tracked -= 1
+        found = None if roi is None else self._search(frame, s, c2w, roi, depths, min_points)
+        if found is not None and self._cut_by(found, roi, frame.depth_mm.shape, s):
+            found = None  # the person reaches the window's edge: look at the whole image
+        whole_image = found is None
+        if whole_image:
             self.counters.full_searches += 1
             self._full_search_ns = frame.t_ns
             found = self._search(frame, s, c2w, None, depths, min_points)
+        else:
+            self.counters.tracked += 1
         if found is None:
             self.counters.nobody += 1
             self._track = None
             return None
-        person_at = found.above[found.sel]
+        person_at = found.person_at
         person = np.take(found.world, person_at, axis=1)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
-        if self._full_search_ns == frame.t_ns:
+        if whole_image:  # a window only once a whole-image search agrees with the frame before
             self._confirmed = (self._last_center is not None and cfg.track_margin_m is not None
                                and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
         self._last_center = center
@@ -418,7 +422,8 @@ class PersonFinder:
         w = depth.shape[1]
         rows, cols = person_pixels // w, person_pixels % w
         # The median depth of at most ~2,000 of them (every k-th) is as good for a margin.
-        z = np.take(depth.reshape(-1), person_pixels[::-(-len(person_pixels) // 2048)]).astype(np.float32) * np.float32(0.001)
+        every = -(-len(person_pixels) // 2048)
+        z = np.take(depth.reshape(-1), person_pixels[::every]).astype(np.float32) * np.float32(0.001)
         self._track = _Track(int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()),
                              max(_median(z), self.config.min_range_m), (depth.shape, s))
 
@@ -426,7 +431,7 @@ class PersonFinder:
         """Whether the person found in ``roi`` touches one of its edges inside the image (they
         may go on beyond it)."""
         h, w = -(-shape[0] // s), -(-shape[1] // s)
-        px = found.pixels[found.above[found.sel]]
+        px = found.pixels[found.person_at]
         rows, cols = px // w, px % w
         r0, r1, c0, c1 = roi
         return bool((r0 > 0 and rows.min() <= r0) or (r1 < h and rows.max() >= r1 - 1)
