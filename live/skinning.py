@@ -106,7 +106,7 @@ def skin(rest_vertices: np.ndarray, weights: np.ndarray, transforms: np.ndarray)
         # threads them (m n k <= 4 x 65536). A 12 x 22 by 22 x V product is too small for BLAS
         # threads, which on a busy 2-core machine cost 20x (83 instead of 1,700 frames/s); the
         # blocks run single-threaded at a third of einsum's own loop (0.13 against 0.34 ms for
-        # 7k vertices, benchmarks/bench_lbs.py).
+        # the 7k-vertex product; benchmarks/bench_lbs.py: 1,100 -> 1,550 frames/s for lbs()).
         blended = np.empty((12, wt.shape[1]), np.float32)
         block = max(_BLAS_SINGLE_THREAD_MNK // (12 * j_count), 1)
         for a in range(0, wt.shape[1], block):

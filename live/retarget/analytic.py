@@ -19,8 +19,9 @@ observed one(s); local rotations are then L_j = G_parent^T G_j.
 
 Forward kinematics of the result on the same rest skeleton reproduces the input joints exactly
 when the input came from that skeleton; twist that positions cannot see is not recovered.
-Batch computations run level by level of the tree on rotation matrices, so one frame costs a
-few dozen numpy calls (see benchmarks/bench_retarget.py).
+Batch computations run step by step on rotation matrices (four dependency steps: the pelvis and
+spine3 frames need no parent, then each swing joint one step after its parent), so one frame
+costs a few dozen numpy calls (see benchmarks/bench_retarget.py).
 """
 
 from __future__ import annotations
@@ -108,8 +109,8 @@ class RestInfo:
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
         lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
         framed_rest_t = np.stack([frames[j].T for j in _FRAMED])
-        return cls(rest, rest_offsets(rest), frames, framed_rest_t, swing, normalize(swing), dirs, hinges, cross(dirs, hinges),
-                   dot(lower, hinges))
+        return cls(rest, rest_offsets(rest), frames, framed_rest_t, swing, normalize(swing), dirs, hinges,
+                   cross(dirs, hinges), dot(lower, hinges))
 
 
 def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray,
@@ -185,7 +186,6 @@ def _plan() -> tuple[_LevelPlan, ...]:
 _FRAMED_JOINTS = np.array(list(_FRAMED), dtype=np.int64)
 _FRAMED_IDX = np.array(list(_FRAMED.values()), dtype=np.int64)  # (F, 4): a_from, a_to, b_from, b_to
 _PLAN = _plan()
-assert _PLAN[0].framed == tuple(int(j) for j in _FRAMED_JOINTS)
 _LEAVES = np.array([j for j in range(NUM_JOINTS) if not CHILDREN[j]], dtype=np.int64)
 
 
@@ -201,7 +201,7 @@ def solve_globals(
     glob = np.empty((n, NUM_JOINTS, 3, 3))
     prev = np.zeros(len(LIMBS)) if twist is None else np.array(twist, dtype=np.float64)
     for step in _PLAN:
-        if step.framed:
+        if step.framed:  # step 0 holds all of them
             a0, a1, b0, b1 = _FRAMED_IDX.T
             f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
             glob[:, _FRAMED_JOINTS] = f @ info.framed_rest_t
