@@ -19,19 +19,23 @@ observed one(s); local rotations are then L_j = G_parent^T G_j.
 
 Forward kinematics of the result on the same rest skeleton reproduces the input joints exactly
 when the input came from that skeleton; twist that positions cannot see is not recovered.
-Batch computations run step by step on rotation matrices (four dependency steps: the pelvis and
-spine3 frames need no parent, then each swing joint one step after its parent), so one frame
-costs a few dozen numpy calls (see benchmarks/bench_retarget.py).
+A frame is solved on plain floats (live/retarget/vec3.py): the pelvis and spine3 frames need no
+parent, then every swing joint after its parent; on one joint's 3x3 matrices numpy's per-call
+overhead was most of the cost (0.15 against 0.7 ms per frame, benchmarks/bench_retarget.py).
+Batches run frame after frame (the limb twists carry over), their local rotations in one batch.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from live.errors import UserInputError
-from live.retarget.ik import axis_angle_matrix, cross, dot, normalize, rotation_between_units
+from live.retarget.vec3 import Mat
+from live.retarget import vec3 as v3
+from live.retarget.ik import cross, dot, normalize
 from live.rotations import matrix_to_quat
 from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 
@@ -43,11 +47,11 @@ LIMBS: tuple[tuple[int, int, int, tuple[float, float, float]], ...] = (
     (_J["left_shoulder"], _J["left_elbow"], _J["left_wrist"], (0.0, -1.0, 0.0)),
     (_J["right_shoulder"], _J["right_elbow"], _J["right_wrist"], (0.0, 1.0, 0.0)),
 )
-#: Bend angles (radians) between which the limb plane takes over from the previous twist.
-_LIMB_IDX = np.array([limb[:3] for limb in LIMBS], dtype=np.int64)
 _LIMB_OF = {int(limb[0]): k for k, limb in enumerate(LIMBS)}
-STRAIGHT_LO = np.deg2rad(5.0)
-STRAIGHT_HI = np.deg2rad(15.0)
+_LIMB_IDX_F = [tuple(int(i) for i in limb[:3]) for limb in LIMBS]  # (root, middle, end) per limb
+#: Bend angles (radians) between which the limb plane takes over from the previous twist.
+STRAIGHT_LO = float(np.deg2rad(5.0))
+STRAIGHT_HI = float(np.deg2rad(15.0))
 
 # Joints posed from a frame of two child directions: joint -> (a_from, a_to, b_from, b_to).
 _FRAMED = {
@@ -68,15 +72,6 @@ _DEPTH = _depths()
 LEVELS: tuple[np.ndarray, ...] = tuple(np.flatnonzero(_DEPTH == k) for k in range(_DEPTH.max() + 1))
 
 
-def frame_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Orthonormal frames (..., 3, 3) with columns (a, b orthogonalised, a x b) from (..., 3)."""
-    e1 = normalize(a)
-    e3 = normalize(cross(e1, b))
-    out = np.empty(e1.shape + (3,))
-    out[..., 0], out[..., 1], out[..., 2] = e1, cross(e3, e1), e3
-    return out
-
-
 @dataclass(frozen=True)
 class RestInfo:
     """Per-rest-skeleton constants of the solver (computed once per body)."""
@@ -84,13 +79,16 @@ class RestInfo:
     rest_joints: np.ndarray  # (22, 3)
     offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
     frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
-    framed_rest_t: np.ndarray  # (F, 3, 3) those frames transposed, in _FRAMED order
     swing_dirs: np.ndarray  # (22, 3) rest unit direction to the only child (zero elsewhere)
-    swing_units: np.ndarray  # swing_dirs normalised again, as rotation_between would per frame
+    swing_units: np.ndarray  # swing_dirs normalised again, as the per-frame solver's u
     limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
     limb_hinges: np.ndarray  # (4, 3) rest hinge axis h, orthogonal to the upper bone
     limb_binormals: np.ndarray  # (4, 3) upper bone x h
     limb_rest_c: np.ndarray  # (4,) rest lower-bone direction . h (kept by a hinge about h)
+    # The same constants as plain floats for the per-frame solver (_solve_frame).
+    frames_t_f: dict  # joint -> its rest frame transposed, rows of floats
+    swing_units_f: list  # (22,) rows of floats
+    limbs_f: list  # per limb: (upper direction, hinge, binormal, rest c)
 
     @classmethod
     def of(cls, rest_joints: np.ndarray) -> RestInfo:
@@ -99,7 +97,8 @@ class RestInfo:
             raise UserInputError(f"rest joints must be (22, 3), got {rest.shape}")
         if pelvis_height(rest) <= 0:
             raise UserInputError("rest skeleton pelvis must be above the floor (y > 0)")
-        frames = {j: frame_matrix(rest[a1] - rest[a0], rest[b1] - rest[b0]) for j, (a0, a1, b0, b1) in _FRAMED.items()}
+        frames = {j: np.array(v3.frame(rest[a1] - rest[a0], rest[b1] - rest[b0]))
+                  for j, (a0, a1, b0, b1) in _FRAMED.items()}
         swing = np.zeros((NUM_JOINTS, 3))
         for j in range(NUM_JOINTS):
             if len(CHILDREN[j]) == 1:
@@ -108,18 +107,19 @@ class RestInfo:
         hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
         lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
-        framed_rest_t = np.stack([frames[j].T for j in _FRAMED])
-        return cls(rest, rest_offsets(rest), frames, framed_rest_t, swing, normalize(swing), dirs, hinges,
-                   cross(dirs, hinges), dot(lower, hinges))
+        units, binormals, rest_c = normalize(swing), cross(dirs, hinges), dot(lower, hinges)
+        return cls(rest, rest_offsets(rest), frames, swing, units, dirs, hinges, binormals, rest_c,
+                   {j: f.T.tolist() for j, f in frames.items()}, units.tolist(),
+                   [(d, h, b, c) for d, h, b, c in zip(dirs.tolist(), hinges.tolist(), binormals.tolist(),
+                                                       rest_c.tolist())])
 
 
-def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: np.ndarray,
-                limb_joints: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
-    """Twist angles about the limbs' upper bones that make their middle joints hinges.
+def _limb_twist(x: list, g: Mat, limb: tuple, consts: tuple) -> tuple[float, float]:
+    """Twist angle about a limb's upper bone that makes its middle joint a hinge, and its weight.
 
-    joints (N, 22, 3); swing_glob (N, K, 3, 3): the upper bones' global rotations without twist;
-    ks (K,) limb numbers (limb_joints: their (root, middle, end) joints, when known). Returns (angle (N, K), weight (N, K) in [0, 1], 0 where the limb is too
-    straight for its plane to be known).
+    x: one frame's joints (22 rows of floats); g: the upper bone's global rotation without twist;
+    limb: (root, middle, end) joints; consts: (rest upper direction d0, hinge h, d0 x h, rest c).
+    Returns (angle, weight in [0, 1], 0 where the limb is too straight for its plane to be known).
 
     A hinge about h keeps the lower bone's component along h at its rest value c = e0 . h. With
     the lower bone s seen in the untwisted upper frame, x = s . h, y = s . (d0 x h), twisting by
@@ -127,66 +127,58 @@ def _limb_twist(joints: np.ndarray, swing_glob: np.ndarray, info: RestInfo, ks: 
     r = |(x, y)| (the + branch bends the hinge the natural way). This stays exact for a rest limb
     that is not perfectly straight, where the plain limb-plane normal is off by many degrees.
     """
-    r, m, e = _LIMB_IDX[ks].T if limb_joints is None else limb_joints
-    upper = joints[:, m] - joints[:, r]
-    lower = normalize(joints[:, e] - joints[:, m])
-    bend = np.arccos(np.clip(dot(normalize(upper), lower), -1.0, 1.0))
-    s_loc = np.einsum("nkji,nkj->nki", swing_glob, lower)
-    x = dot(s_loc, info.limb_hinges[ks])
-    y = dot(s_loc, info.limb_binormals[ks])
-    radius = np.sqrt(x * x + y * y)
-    angle = np.arctan2(y, x) + np.arccos(np.clip(info.limb_rest_c[ks] / np.maximum(radius, 1e-12), -1.0, 1.0))
-    weight = np.clip((bend - STRAIGHT_LO) / (STRAIGHT_HI - STRAIGHT_LO), 0.0, 1.0)
+    r, m, e = limb
+    _, hinge, binormal, rest_c = consts
+    lower = v3.unit(v3.sub(x[e], x[m]))
+    bend = math.acos(v3.clamp(v3.dot(v3.unit(v3.sub(x[m], x[r])), lower)))
+    s_loc = v3.mtv(g, lower)
+    hx, hy = v3.dot(s_loc, hinge), v3.dot(s_loc, binormal)
+    radius = math.sqrt(hx * hx + hy * hy)
+    angle = math.atan2(hy, hx) + math.acos(v3.clamp(rest_c / max(radius, 1e-12)))
+    weight = v3.clamp((bend - STRAIGHT_LO) / (STRAIGHT_HI - STRAIGHT_LO), 0.0, 1.0)
     return angle, weight
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@dataclass(frozen=True)
-class _LevelPlan:
-    """What ``solve_globals`` does at one step (index arrays built once, not per frame)."""
-
-    framed: tuple[int, ...]  # joints posed from two child directions (_FRAMED)
-    js: np.ndarray  # swing joints
-    ps: np.ndarray  # their parents
-    cs: np.ndarray  # their children
-    sel: np.ndarray  # columns of js that are limb roots
-    ks: np.ndarray  # their limb numbers
-    limb_joints: tuple[np.ndarray, np.ndarray, np.ndarray]  # (root, middle, end) of those limbs
-
-
-def _steps() -> np.ndarray:
-    """(22,) the step of ``solve_globals`` at which each joint is solved: framed joints need no
-    parent, so they come first (step 0) and a swing joint comes one step after its parent. The
-    spine3 frame starts the arms and neck at step 0 beside the pelvis, so the tree takes four
-    steps instead of its eight levels."""
-    step = np.zeros(NUM_JOINTS, dtype=np.int64)
-    for j in range(1, NUM_JOINTS):  # parents come before their children
-        step[j] = 0 if j in _FRAMED else step[PARENTS[j]] + 1
-    return step
+def _swing_order() -> tuple[tuple[int, int, int, int], ...]:
+    """(joint, parent, child, limb or -1) of every joint posed by the swing of its one bone,
+    parents before children (framed joints need no parent, so they come before everything)."""
+    order, done = [], set(_FRAMED)
+    while len(done) < NUM_JOINTS:
+        for j in range(1, NUM_JOINTS):
+            if j not in done and PARENTS[j] in done:
+                done.add(j)
+                if len(CHILDREN[j]) == 1:
+                    order.append((j, int(PARENTS[j]), CHILDREN[j][0], _LIMB_OF.get(j, -1)))
+    return tuple(order)
 
 
-def _plan() -> tuple[_LevelPlan, ...]:
-    plan = []
-    steps = _steps()
-    for k in range(steps.max() + 1):
-        level = np.flatnonzero(steps == k)
-        js = np.array([j for j in level if len(CHILDREN[j]) == 1 and j not in _FRAMED], dtype=np.int64)
-        ks = np.array([_LIMB_OF.get(int(j), -1) for j in js], dtype=np.int64)
-        sel = np.flatnonzero(ks >= 0)
-        cs = np.array([CHILDREN[j][0] for j in js], dtype=np.int64)
-        limb = _LIMB_IDX[ks[sel]]
-        plan.append(_LevelPlan(tuple(int(j) for j in _FRAMED if j in level), js, PARENTS[js].astype(np.int64), cs,
-                               sel, ks[sel], (limb[:, 0], limb[:, 1], limb[:, 2])))
-    return tuple(plan)
-
-
-_FRAMED_JOINTS = np.array(list(_FRAMED), dtype=np.int64)
-_FRAMED_IDX = np.array(list(_FRAMED.values()), dtype=np.int64)  # (F, 4): a_from, a_to, b_from, b_to
-_PLAN = _plan()
+_SWING = _swing_order()
 _LEAVES = np.array([j for j in range(NUM_JOINTS) if not CHILDREN[j]], dtype=np.int64)
+_LEAF_LIST = [(int(j), int(PARENTS[j])) for j in _LEAVES]
+
+
+def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
+    """Global rotations (22 matrices, rows of floats) of one frame's joints x (22 rows of
+    floats); ``twist`` (4 floats, the limbs' twists of the frame before) is updated in place."""
+    glob: list = [None] * NUM_JOINTS
+    for j, (a0, a1, b0, b1) in _FRAMED.items():
+        glob[j] = v3.mm(v3.frame(v3.sub(x[a1], x[a0]), v3.sub(x[b1], x[b0])), info.frames_t_f[j])
+    for j, p, c, k in _SWING:
+        gp = glob[p]
+        g = v3.mm(gp, v3.between_units(info.swing_units_f[j], v3.mtv(gp, v3.sub(x[c], x[j]))))
+        if k >= 0:
+            # The plane's twist where the limb is bent, the previous frame's where it is straight.
+            angle, weight = _limb_twist(x, g, _LIMB_IDX_F[k], info.limbs_f[k])
+            twist[k] = _wrap(twist[k] + weight * _wrap(angle - twist[k]))
+            g = v3.mm(g, v3.axis_angle(info.limbs_f[k][0], twist[k]))
+        glob[j] = g
+    for j, p in _LEAF_LIST:
+        glob[j] = glob[p]
+    return glob
 
 
 def solve_globals(
@@ -195,39 +187,16 @@ def solve_globals(
     """Global and local rotation matrices of posed joints (the core of local_rotations_from_joints).
 
     joints (N, 22, 3) float64; twist (4,) the limb twists of the frame before (online state).
-    Returns (global (N, 22, 3, 3), local (N, 22, 3, 3), twist (4,) of the last frame).
+    Returns (global (N, 22, 3, 3), local (N, 22, 3, 3), twist (4,) of the last frame). Frames are
+    solved one after the other on plain floats (the twists carry over), locals in one batch.
     """
-    n = joints.shape[0]
-    glob = np.empty((n, NUM_JOINTS, 3, 3))
-    prev = np.zeros(len(LIMBS)) if twist is None else np.array(twist, dtype=np.float64)
-    for step in _PLAN:
-        if step.framed:  # step 0 holds all of them
-            a0, a1, b0, b1 = _FRAMED_IDX.T
-            f = frame_matrix(joints[:, a1] - joints[:, a0], joints[:, b1] - joints[:, b0])
-            glob[:, _FRAMED_JOINTS] = f @ info.framed_rest_t
-        js, ps, cs, sel, ks = step.js, step.ps, step.cs, step.sel, step.ks
-        if not len(js):
-            continue
-        gp = glob[:, ps]
-        d_loc = np.einsum("nkji,nkj->nki", gp, joints[:, cs] - joints[:, js])
-        g = gp @ rotation_between_units(info.swing_units[js], d_loc)
-        if len(sel):
-            angle, weight = _limb_twist(joints, g[:, sel], info, ks, step.limb_joints)
-            # Sequential filter: the plane's twist where the limb is bent, the previous frame's
-            # where it is straight (so batch and frame-by-frame agree).
-            out = np.empty_like(angle)
-            p = prev[ks]
-            for t in range(n):
-                p = _wrap(p + weight[t] * _wrap(angle[t] - p))
-                out[t] = p
-            prev[ks] = p
-            g[:, sel] = g[:, sel] @ axis_angle_matrix(info.limb_dirs[ks], out)
-        glob[:, js] = g
-    glob[:, _LEAVES] = glob[:, PARENTS[_LEAVES]]
+    prev = [0.0] * len(LIMBS) if twist is None else [float(t) for t in twist]
+    glob = np.array([_solve_frame(x, info, prev) for x in np.asarray(joints, np.float64).tolist()])
+    glob = glob.reshape(len(joints), NUM_JOINTS, 3, 3)
     loc = np.empty_like(glob)
     loc[:, 0] = glob[:, 0]
     loc[:, 1:] = np.swapaxes(glob[:, PARENTS[1:]], -1, -2) @ glob[:, 1:]
-    return glob, loc, prev
+    return glob, loc, np.array(prev)
 
 
 def fk_matrices(loc: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

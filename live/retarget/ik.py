@@ -1,22 +1,25 @@
-"""Two-bone limb IK and the small rotation-matrix helpers the retargeter runs on.
+"""Two-bone limb IK, and the numpy vector helpers the retargeter's per-body set-up runs on.
 
-Matrices are (..., 3, 3) acting on column vectors (v' = R v), like live/rotations.py. The
-retargeter works on matrices rather than quaternions on its hot path because a batched matmul is
-one numpy call where a quaternion product is a dozen; results are converted to quaternions once.
-All functions are pure and take any leading batch shape.
+Matrices act on column vectors (v' = R v), like live/rotations.py. The IK of one frame's limbs
+runs on plain floats (live/retarget/vec3.py: numpy's per-call overhead is most of the cost on a
+limb's 3-vectors); ``two_bone_ik`` takes any leading batch shape and loops over it. The numpy
+helpers (dot, normalize, cross) are pure and take any leading batch shape.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from live.retarget import vec3 as v3
+
 _EPS = 1e-12
-# Levi-Civita symbol: one einsum against it replaces np.cross / a stacked skew matrix, which
-# cost 5-10 times more on the few-element arrays of a single frame.
+# Levi-Civita symbol: one einsum against it replaces np.cross, which costs 5-10 times more on
+# the few-element arrays of a body's joints.
 _LC = np.zeros((3, 3, 3))
 _LC[0, 1, 2] = _LC[1, 2, 0] = _LC[2, 0, 1] = 1.0
 _LC[0, 2, 1] = _LC[2, 1, 0] = _LC[1, 0, 2] = -1.0
-_I3 = np.eye(3)
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -32,45 +35,6 @@ def normalize(v: np.ndarray) -> np.ndarray:
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross products of (..., 3) arrays (broadcasting)."""
     return np.einsum("ijk,...j,...k->...i", _LC, a, b)
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices [v]x (skew(v) @ u == cross(v, u))."""
-    return np.einsum("ijk,...k->...ij", -_LC, v)
-
-
-def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Unit axes (..., 3) and angles (...) in radians -> rotation matrices (..., 3, 3) (Rodrigues)."""
-    a = np.asarray(angle)[..., None, None]
-    c = np.cos(a)
-    return c * _I3 + np.sin(a) * skew(axis) + (1.0 - c) * (axis[..., :, None] * axis[..., None, :])
-
-
-def rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Shortest-arc rotation matrices (..., 3, 3) taking direction u to direction v (any lengths).
-
-    Same rotation as ``live.rotations.quat_between``; opposite directions turn by pi about an axis
-    orthogonal to u.
-    """
-    return rotation_between_units(normalize(np.asarray(u, dtype=np.float64)), np.asarray(v, dtype=np.float64))
-
-
-def rotation_between_units(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``rotation_between`` for u already normalised (e.g. rest directions normalised once)."""
-    v = normalize(v)
-    c = cross(u, v)
-    d = dot(u, v)
-    opposite = d < -1.0 + 1e-9
-    # Rodrigues with sin = |c|, cos = d: R = d I + [c]x + c c^T / (1 + d).
-    scale = 1.0 / np.where(opposite, 1.0, 1.0 + d)
-    r = d[..., None, None] * _I3 + skew(c) + (c[..., :, None] * c[..., None, :]) * scale[..., None, None]
-    if opposite.any():
-        ortho = cross(u, np.array([1.0, 0.0, 0.0]))
-        small = np.linalg.norm(ortho, axis=-1) < 1e-6
-        ortho = normalize(np.where(small[..., None], cross(u, np.array([0.0, 1.0, 0.0])), ortho))
-        flip = 2.0 * ortho[..., :, None] * ortho[..., None, :] - np.eye(3)
-        r = np.where(opposite[..., None, None], flip, r)
-    return r
 
 
 def two_bone_ik(
@@ -90,36 +54,42 @@ def two_bone_ik(
     kept; an unreachable target leaves the limb pointing at it, fully stretched (minus 1e-4 of
     its length, so that the knee keeps a defined plane) or fully folded.
     """
-    ab = b - a
-    cb = c - b
-    ac = c - a
-    l_ab = np.sqrt(dot(ab, ab))
-    l_cb = np.sqrt(dot(cb, cb))
-    l_ac = np.sqrt(dot(ac, ac))
-    l_at = np.sqrt(dot(target - a, target - a))
+    arrays = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in (a, b, c, target, bend_hint)))
+    lead = arrays[0].shape[:-1]
+    rows = [x.reshape(-1, 3).tolist() for x in arrays]
+    solved = [limb_ik(*limb) for limb in zip(*rows)]
+    upper = np.array([u for u, _ in solved]).reshape(lead + (3, 3))
+    lower = np.array([w for _, w in solved]).reshape(lead + (3, 3))
+    return upper, lower
+
+
+def limb_ik(a: v3.Vec, b: v3.Vec, c: v3.Vec, target: v3.Vec, bend_hint: v3.Vec) -> tuple[v3.Mat, v3.Mat]:
+    """``two_bone_ik`` of one limb on plain floats (the per-frame path: a dozen times cheaper
+    than numpy on one limb's 3-vectors); returns (delta_upper, delta_lower) as rows of floats."""
+    ab, cb, ac, at = v3.sub(b, a), v3.sub(c, b), v3.sub(c, a), v3.sub(target, a)
+    l_ab, l_cb, l_ac = v3.norm(ab), v3.norm(cb), v3.norm(ac)
     reach = l_ab + l_cb
-    l_at = np.minimum(np.maximum(l_at, np.abs(l_ab - l_cb) + 1e-4 * reach), reach * (1.0 - 1e-4))
-    # Interior angles now (from the known lengths) and wanted (law of cosines), at the root and
-    # at the middle joint, stacked (2, ...): one arccos for all four; the bend plane's normal
-    # rotates both.
-    cos_now = np.stack([dot(ac, ab) / np.maximum(l_ac * l_ab, _EPS), -dot(ab, cb) / np.maximum(l_ab * l_cb, _EPS)])
-    cos_want = np.stack([(l_cb**2 - l_ab**2 - l_at**2) / (-2.0 * l_ab * l_at),
-                         (l_at**2 - l_ab**2 - l_cb**2) / (-2.0 * l_ab * l_cb)])
-    turn = np.arccos(np.minimum(np.maximum(np.stack([cos_want, cos_now]), -1.0), 1.0))
-    plane = cross(ac, ab)
-    plane_n = np.sqrt(dot(plane, plane))
-    # A straight limb has no plane: bend about the hinge hint (its sign chosen to match
-    # cross(ac, ab) of a naturally flexed limb).
-    straight = plane_n < 1e-6 * np.maximum(l_ab * (l_ab + l_cb), _EPS)
-    hint = np.asarray(bend_hint, dtype=np.float64)
-    hint = hint - dot(hint, ab)[..., None] * ab / np.maximum(l_ab**2, _EPS)[..., None]
-    axis0 = np.where(straight[..., None], -normalize(hint), plane / np.maximum(plane_n, _EPS)[..., None])
-    r0, r1 = axis_angle_matrix(axis0, turn[0] - turn[1])
+    l_at = min(max(v3.norm(at), abs(l_ab - l_cb) + 1e-4 * reach), reach * (1.0 - 1e-4))
+    # Interior angles at the root and at the middle joint, wanted (law of cosines) minus now;
+    # the bend plane's normal rotates both.
+    turn_root = (math.acos(v3.clamp((l_cb**2 - l_ab**2 - l_at**2) / (-2.0 * l_ab * l_at)))
+                 - math.acos(v3.clamp(v3.dot(ac, ab) / max(l_ac * l_ab, v3.EPS))))
+    turn_mid = (math.acos(v3.clamp((l_at**2 - l_ab**2 - l_cb**2) / (-2.0 * l_ab * l_cb)))
+                - math.acos(v3.clamp(-v3.dot(ab, cb) / max(l_ab * l_cb, v3.EPS))))
+    plane = v3.cross(ac, ab)
+    plane_n = v3.norm(plane)
+    if plane_n < 1e-6 * max(l_ab * (l_ab + l_cb), v3.EPS):
+        # A straight limb has no plane: bend about the hinge hint (its sign chosen to match
+        # cross(ac, ab) of a naturally flexed limb).
+        hint = v3.sub(bend_hint, v3.scale(ab, v3.dot(bend_hint, ab) / max(l_ab**2, v3.EPS)))
+        axis = v3.scale(v3.unit(hint), -1.0)
+    else:
+        axis = v3.scale(plane, 1.0 / max(plane_n, v3.EPS))
+    r0, r1 = v3.axis_angle(axis, turn_root), v3.axis_angle(axis, turn_mid)
     # The two bends keep the end on the old a-c line (up to rounding); swing it onto the target.
-    end = ab + np.einsum("...ij,...j->...i", r1, cb)
-    r2 = rotation_between(np.einsum("...ij,...j->...i", r0, end), target - a)
-    upper = r2 @ r0
-    return upper, upper @ r1
+    end = v3.mv(r0, v3.add(ab, v3.mv(r1, cb)))
+    upper = v3.mm(v3.between_units(v3.unit(end), at), r0)
+    return upper, v3.mm(upper, r1)
 
 
 def apply_limb_ik(
@@ -140,21 +110,22 @@ def apply_limb_ik(
     middle joints; targets (K, 3). The end joints keep their world orientation (a locked foot
     keeps its angle to the floor) and their descendants move rigidly with them.
     """
-    r, m, e = limbs[:, 0], limbs[:, 1], limbs[:, 2]
-    hint = np.einsum("kij,kj->ki", glob[r], hinges)
-    upper, lower = two_bone_ik(pos[r], pos[m], pos[e], targets, hint)
-    g_r = upper @ glob[r]
-    g_m = lower @ glob[m]
-    old_e = pos[e].copy()
-    pos[m] = pos[r] + np.einsum("kij,kj->ki", g_r, offsets[m])
-    pos[e] = pos[m] + np.einsum("kij,kj->ki", g_m, offsets[e])
-    glob[r], glob[m] = g_r, g_m
-    loc[r] = np.swapaxes(glob[parents[r]], -1, -2) @ g_r
-    loc[m] = np.swapaxes(g_r, -1, -2) @ g_m
-    loc[e] = np.swapaxes(g_m, -1, -2) @ glob[e]
-    for k, end in enumerate(e):
-        stack = list(children[end])
+    for (r, m, e), hinge, target in zip(np.asarray(limbs).tolist(), np.asarray(hinges).tolist(),
+                                        np.asarray(targets, np.float64).tolist()):
+        g_r0, g_m0, g_e = glob[r].tolist(), glob[m].tolist(), glob[e].tolist()
+        a, b, c = pos[r].tolist(), pos[m].tolist(), pos[e].tolist()
+        upper, lower = limb_ik(a, b, c, target, v3.mv(g_r0, hinge))
+        g_r, g_m = v3.mm(upper, g_r0), v3.mm(lower, g_m0)
+        knee = v3.add(a, v3.mv(g_r, offsets[m].tolist()))
+        end = v3.add(knee, v3.mv(g_m, offsets[e].tolist()))
+        glob[r], glob[m] = g_r, g_m
+        pos[m], pos[e] = knee, end
+        loc[r] = v3.mtm(glob[parents[r]].tolist(), g_r)
+        loc[m] = v3.mtm(g_r, g_m)
+        loc[e] = v3.mtm(g_m, g_e)
+        shift = v3.sub(end, c)
+        stack = list(children[e])
         while stack:
-            c = stack.pop()
-            pos[c] += pos[end] - old_e[k]
-            stack.extend(children[c])
+            j = stack.pop()
+            pos[j] += shift
+            stack.extend(children[j])
