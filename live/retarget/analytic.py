@@ -74,21 +74,16 @@ LEVELS: tuple[np.ndarray, ...] = tuple(np.flatnonzero(_DEPTH == k) for k in rang
 
 @dataclass(frozen=True)
 class RestInfo:
-    """Per-rest-skeleton constants of the solver (computed once per body)."""
+    """Per-rest-skeleton constants of the solver (computed once per body; the per-frame ones as
+    plain floats, which ``_solve_frame`` runs on)."""
 
     rest_joints: np.ndarray  # (22, 3)
     offsets: np.ndarray  # (22, 3) offsets from the parent (root keeps its position)
-    frames: dict[int, np.ndarray]  # joint -> (3, 3) rest frame of its two child directions
-    swing_dirs: np.ndarray  # (22, 3) rest unit direction to the only child (zero elsewhere)
-    swing_units: np.ndarray  # swing_dirs normalised again, as the per-frame solver's u
-    limb_dirs: np.ndarray  # (4, 3) rest unit direction of each limb's upper bone
-    limb_hinges: np.ndarray  # (4, 3) rest hinge axis h, orthogonal to the upper bone
-    limb_binormals: np.ndarray  # (4, 3) upper bone x h
-    limb_rest_c: np.ndarray  # (4,) rest lower-bone direction . h (kept by a hinge about h)
-    # The same constants as plain floats for the per-frame solver (_solve_frame).
-    frames_t_f: dict  # joint -> its rest frame transposed, rows of floats
-    swing_units_f: list  # (22,) rows of floats
-    limbs_f: list  # per limb: (upper direction, hinge, binormal, rest c)
+    frames_t: dict  # framed joint -> its rest frame of two child directions, transposed (3 rows)
+    swing_units: list  # (22,) rest unit direction to the only child (zero elsewhere), rows
+    # Per limb: (rest unit direction d0 of the upper bone, rest hinge axis h orthogonal to it,
+    # d0 x h, rest lower-bone direction . h (what a hinge about h keeps)).
+    limbs: list
 
     @classmethod
     def of(cls, rest_joints: np.ndarray) -> RestInfo:
@@ -97,8 +92,8 @@ class RestInfo:
             raise UserInputError(f"rest joints must be (22, 3), got {rest.shape}")
         if pelvis_height(rest) <= 0:
             raise UserInputError("rest skeleton pelvis must be above the floor (y > 0)")
-        frames = {j: np.array(v3.frame(rest[a1] - rest[a0], rest[b1] - rest[b0]))
-                  for j, (a0, a1, b0, b1) in _FRAMED.items()}
+        frames_t = {j: tuple(zip(*v3.frame((rest[a1] - rest[a0]).tolist(), (rest[b1] - rest[b0]).tolist())))
+                    for j, (a0, a1, b0, b1) in _FRAMED.items()}
         swing = np.zeros((NUM_JOINTS, 3))
         for j in range(NUM_JOINTS):
             if len(CHILDREN[j]) == 1:
@@ -107,11 +102,9 @@ class RestInfo:
         hinges = np.array([h for *_, h in LIMBS], dtype=np.float64)
         hinges = normalize(hinges - np.sum(hinges * dirs, axis=-1, keepdims=True) * dirs)
         lower = normalize(np.array([rest[e] - rest[m] for _, m, e, _ in LIMBS]))
-        units, binormals, rest_c = normalize(swing), cross(dirs, hinges), dot(lower, hinges)
-        return cls(rest, rest_offsets(rest), frames, swing, units, dirs, hinges, binormals, rest_c,
-                   {j: f.T.tolist() for j, f in frames.items()}, units.tolist(),
-                   [(d, h, b, c) for d, h, b, c in zip(dirs.tolist(), hinges.tolist(), binormals.tolist(),
-                                                       rest_c.tolist())])
+        limbs = list(zip(dirs.tolist(), hinges.tolist(), cross(dirs, hinges).tolist(), dot(lower, hinges).tolist()))
+        # (Units normalised twice, as the solver's rotation between them always did.)
+        return cls(rest, rest_offsets(rest), frames_t, normalize(swing).tolist(), limbs)
 
 
 def _limb_twist(x: list, g: Mat, limb: tuple, consts: tuple) -> tuple[float, float]:
@@ -166,15 +159,15 @@ def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
     floats); ``twist`` (4 floats, the limbs' twists of the frame before) is updated in place."""
     glob: list = [None] * NUM_JOINTS
     for j, (a0, a1, b0, b1) in _FRAMED.items():
-        glob[j] = v3.mm(v3.frame(v3.sub(x[a1], x[a0]), v3.sub(x[b1], x[b0])), info.frames_t_f[j])
+        glob[j] = v3.mm(v3.frame(v3.sub(x[a1], x[a0]), v3.sub(x[b1], x[b0])), info.frames_t[j])
     for j, p, c, k in _SWING:
         gp = glob[p]
-        g = v3.mm(gp, v3.between_units(info.swing_units_f[j], v3.mtv(gp, v3.sub(x[c], x[j]))))
+        g = v3.mm(gp, v3.between_units(info.swing_units[j], v3.mtv(gp, v3.sub(x[c], x[j]))))
         if k >= 0:
             # The plane's twist where the limb is bent, the previous frame's where it is straight.
-            angle, weight = _limb_twist(x, g, _LIMB_IDX_F[k], info.limbs_f[k])
+            angle, weight = _limb_twist(x, g, _LIMB_IDX_F[k], info.limbs[k])
             twist[k] = _wrap(twist[k] + weight * _wrap(angle - twist[k]))
-            g = v3.mm(g, v3.axis_angle(info.limbs_f[k][0], twist[k]))
+            g = v3.mm(g, v3.axis_angle(info.limbs[k][0], twist[k]))
         glob[j] = g
     for j, p in _LEAF_LIST:
         glob[j] = glob[p]
