@@ -17,6 +17,7 @@ from __future__ import annotations
 import warnings
 from collections import deque
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -225,21 +226,30 @@ class _Track:
 
 @dataclass
 class _Search:
-    """One search's result: world points (3, M), their strided pixels, the above-floor indices,
-    and the person among them (``_cluster``'s mask, label grid, label and grid origin)."""
+    """One search's result: world points (3, M), their flat pixels in the strided image (None
+    for a cloud frame) of width ``width``, the above-floor indices, and the person among them
+    (``_cluster``'s mask, label grid, label, grid origin and the person's points (3, P))."""
 
     world: np.ndarray
     pixels: np.ndarray | None
+    width: int
     above: np.ndarray
     sel: np.ndarray
     labels: np.ndarray
     lab: int
     origin: np.ndarray
+    person: np.ndarray
 
-    @property
-    def person_at(self) -> np.ndarray:
-        """Indices of the person's points in ``world`` (and ``pixels``)."""
-        return self.above[self.sel]
+    @cached_property
+    def person_pixels(self) -> np.ndarray:
+        """The person's flat pixels in the strided image."""
+        return self.pixels[self.above[self.sel]]
+
+    @cached_property
+    def box(self) -> tuple[int, int, int, int]:
+        """The person's rows r0..r1 and cols c0..c1 (inclusive) in the strided image."""
+        rows, cols = self.person_pixels // self.width, self.person_pixels % self.width
+        return int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max())
 
 
 @dataclass
@@ -363,8 +373,7 @@ class PersonFinder:
             self.counters.nobody += 1
             self._track = None
             return None
-        person_at = found.person_at
-        person = np.take(found.world, person_at, axis=1)
+        person = found.person
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
         if whole_image:  # a window only once a whole-image search agrees with the frame before
             self._confirmed = (self._last_center is not None and cfg.track_margin_m is not None
@@ -374,9 +383,9 @@ class PersonFinder:
         rng = np.random.default_rng(frame.t_ns & 0xFFFFFFFF)
         n = cfg.num_points
         if found.pixels is not None:
-            self._remember(frame, s, found.pixels[person_at])
+            self._remember(found, s)
         if coarse:
-            pts = self._fine_sample(frame, c2w, found.pixels[person_at], found.labels, found.lab, found.origin, rng)
+            pts = self._fine_sample(frame, c2w, found.box, found.labels, found.lab, found.origin, rng)
         else:
             pts = np.take(person, rng.choice(person.shape[1], n, replace=person.shape[1] < n), axis=1).T
         local = (pts - to_world[:3, 3].astype(np.float32)) @ to_world[:3, :3].astype(np.float32)
@@ -393,7 +402,8 @@ class PersonFinder:
         if depths is not None and pixels is not None:
             moving = self._moved(depths, pixels[above])
         got = self._cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points=min_points, moving=moving)
-        return None if got is None else _Search(world, pixels, above, *got)
+        width = -(-frame.depth_mm.shape[1] // s) if frame.depth_mm is not None else 0
+        return None if got is None else _Search(world, pixels, width, above, *got)
 
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
         """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by
@@ -416,26 +426,22 @@ class PersonFinder:
         return (max(track.r0 - grow_r, 0), min(track.r1 + 1 + grow_r, depth_shape[0]),
                 max(track.c0 - grow_c, 0), min(track.c1 + 1 + grow_c, depth_shape[1]))
 
-    def _remember(self, frame: DepthFrame, s: int, person_pixels: np.ndarray) -> None:
+    def _remember(self, found: _Search, s: int) -> None:
         """Keep the person's strided-image box and median depth for the next frame's window."""
         depth = self._past_depth[-1][1]  # this frame's strided depth image, contiguous
-        w = depth.shape[1]
-        rows, cols = person_pixels // w, person_pixels % w
-        # The median depth of at most ~2,000 of them (every k-th) is as good for a margin.
-        every = -(-len(person_pixels) // 2048)
-        z = np.take(depth.reshape(-1), person_pixels[::every]).astype(np.float32) * np.float32(0.001)
-        self._track = _Track(int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max()),
-                             max(_median(z), self.config.min_range_m), (depth.shape, s))
+        # The median depth of at most ~2,000 of their pixels (every k-th) is as good for a margin.
+        px = found.person_pixels
+        z = np.take(depth.reshape(-1), px[::-(-len(px) // 2048)]).astype(np.float32) * np.float32(0.001)
+        self._track = _Track(*found.box, max(_median(z), self.config.min_range_m), (depth.shape, s))
 
     def _cut_by(self, found: _Search, roi: tuple[int, int, int, int], shape: tuple[int, int], s: int) -> bool:
         """Whether the person found in ``roi`` touches one of its edges inside the image (they
         may go on beyond it)."""
         h, w = -(-shape[0] // s), -(-shape[1] // s)
-        px = found.pixels[found.person_at]
-        rows, cols = px // w, px % w
+        top, bottom, left, right = found.box
         r0, r1, c0, c1 = roi
-        return bool((r0 > 0 and rows.min() <= r0) or (r1 < h and rows.max() >= r1 - 1)
-                    or (c0 > 0 and cols.min() <= c0) or (c1 < w and cols.max() >= c1 - 1))
+        return (r0 > 0 and top <= r0) or (r1 < h and bottom >= r1 - 1) or (c0 > 0 and left <= c0) or (
+            c1 < w and right >= c1 - 1)
 
     def _motion_reference(self, frame: DepthFrame, s: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(this frame's strided depth image, contiguous; that of the newest stored frame at
@@ -467,18 +473,18 @@ class PersonFinder:
         z_ref = np.take(ref.reshape(-1), at).astype(np.float32) * np.float32(0.001)
         return (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
 
-    def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, person_idx: np.ndarray, labels: np.ndarray,
+    def _fine_sample(self, frame: DepthFrame, c2w: np.ndarray, box: tuple[int, int, int, int], labels: np.ndarray,
                      lab: int, origin: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """num_points world points (N, 3) drawn uniformly without replacement from the person's
-        pixels at pixel_stride: the pixels of the coarse person's image box are visited in random
-        order and kept when their point falls in the person's cells (above the floor)."""
+        pixels at pixel_stride: the pixels of the coarse person's image box (``box``: rows r0..r1,
+        cols c0..c1 at coarse_stride) are visited in random order and kept when their point falls
+        in the person's cells (above the floor)."""
         cfg = self.config
         cs, s = cfg.coarse_stride, cfg.pixel_stride
         h, w = frame.depth_mm.shape
-        wc = -(-w // cs)
-        rows, cols = (person_idx // wc) * cs, (person_idx % wc) * cs
-        r0, r1 = max(rows.min() - cs, 0) // s * s, min(rows.max() + cs + 1, h)
-        c0, c1 = max(cols.min() - cs, 0) // s * s, min(cols.max() + cs + 1, w)
+        top, bottom, left, right = (v * cs for v in box)
+        r0, r1 = max(top - cs, 0) // s * s, min(bottom + cs + 1, h)
+        c0, c1 = max(left - cs, 0) // s * s, min(right + cs + 1, w)
         at = (slice(r0, r1, s), slice(c0, c1, s))
         z = frame.depth_mm[at].astype(np.float32) * np.float32(0.001)
         valid = (z > cfg.min_range_m) & (z < cfg.max_range_m)
@@ -512,10 +518,10 @@ class PersonFinder:
         return pts[rng.choice(len(pts), n, replace=True)]
 
     def _cluster(self, pts: np.ndarray, eye_xz: np.ndarray, min_points: int, moving: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
+                 ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
         """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
-        the cell label grid, its label, the grid origin (x, z)), or None. moving: (M,) bool,
-        points whose depth changed lately (``_moving_pixels``), or None when not known."""
+        the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
+        moving: (M,) bool, points whose depth changed lately (``_moved``), or None when not known."""
         cfg = self.config
         if pts.shape[1] < min_points:
             return None
@@ -617,5 +623,5 @@ class PersonFinder:
             if self._last_center is not None:
                 score /= 1.0 + np.linalg.norm(c - self._last_center)
             if score > best_score:
-                best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin), score
+                best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score
         return best
