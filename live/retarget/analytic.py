@@ -150,8 +150,7 @@ def _swing_order() -> tuple[tuple[int, int, int, int], ...]:
 
 
 _SWING = _swing_order()
-_LEAVES = np.array([j for j in range(NUM_JOINTS) if not CHILDREN[j]], dtype=np.int64)
-_LEAF_LIST = [(int(j), int(PARENTS[j])) for j in _LEAVES]
+_LEAVES = tuple((j, int(PARENTS[j])) for j in range(NUM_JOINTS) if not CHILDREN[j])  # (leaf, parent)
 
 
 def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
@@ -169,7 +168,7 @@ def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
             twist[k] = _wrap(twist[k] + weight * _wrap(angle - twist[k]))
             g = v3.mm(g, v3.axis_angle(info.limbs[k][0], twist[k]))
         glob[j] = g
-    for j, p in _LEAF_LIST:
+    for j, p in _LEAVES:
         glob[j] = glob[p]
     return glob
 
