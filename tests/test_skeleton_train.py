@@ -80,12 +80,15 @@ def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
 
     card = main(["--quick", "--out", str(tmp_path), "--no-progress", "--workers", "2", "--threads", "1"])
     assert json.loads((tmp_path / "skeleton_temporal.json").read_text()) == json.loads(json.dumps(card))
-    assert card["onnx_max_abs_diff_m"] < 1e-4
+    assert card["float32_onnx_max_abs_diff_m"] < 1e-4  # onnxruntime reproduces torch
+    # The deployed file: the MLP's weights in 8-bit blocks, the linear filter path in float32.
+    assert card["onnx_max_abs_diff_m"] < 5e-3
+    assert [name.split("/")[1] for name in card["quantization"]["layers"]] == ["mlp"] * 4
     assert card["regressor_sha256"] == file_sha256(DEFAULT_MODEL)
     assert card["data"]["train"]["found_frames"] > 0
     assert not set(card["data"]["val"]["bodies"]) & set(card["data"]["train"]["bodies"])
     val = card["metrics"]["val"]["on_performer"]
-    assert set(val) == {"per_frame", "one_euro", "temporal"} and val["temporal"]["mpjpe_mm"] > 0
+    assert set(val) == {"per_frame", "one_euro", "temporal", "temporal_float32"} and val["temporal"]["mpjpe_mm"] > 0
     stage = SkeletonStage(temporal=tmp_path / "skeleton_temporal.onnx")
     assert stage.temporal is not None and stage.temporal.window == card["window"]
     assert stage.use_filter is False  # the temporal model replaces One Euro by default
@@ -144,3 +147,37 @@ def test_reexport_rebuilds_the_training_graph_and_moves_temporal_cards(tmp_path)
     assert json.loads(path.with_suffix(".json").read_text())["export"]["form"] == "DeployedVotingPointNet"
     with pytest.raises(SystemExit, match="no re-export"):
         main(["--model", str(path)])  # already deployed
+
+
+def test_weight_quantization_keeps_unselected_layers_in_float32(tmp_path):
+    """models.train.quantize: the selected Gemm layers become 8-bit MatMulNBits, the others stay
+    as they were, and the quantized graph computes the same function to the rounding of its
+    weights."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnx_ir")
+    import onnxruntime as ort
+    from onnx import TensorProto, helper, numpy_helper
+
+    from models.train.quantize import quantize_matmuls
+
+    rng = np.random.default_rng(0)
+    w1, b1 = rng.standard_normal((64, 100)).astype(np.float32) * 0.1, rng.standard_normal(64).astype(np.float32)
+    w2, b2 = rng.standard_normal((100, 8)).astype(np.float32) * 0.1, rng.standard_normal(8).astype(np.float32)
+    graph = helper.make_graph(
+        [helper.make_node("Gemm", ["x", "w1", "b1"], ["h"], name="/mlp/Gemm", transB=1),
+         helper.make_node("Relu", ["h"], ["r"], name="/mlp/Relu"),
+         helper.make_node("Gemm", ["r", "w2", "b2"], ["y"], name="/linear/Gemm")],
+        "g", [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["b", 100])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, ["b", 8])],
+        [numpy_helper.from_array(a, n) for a, n in ((w1, "w1"), (b1, "b1"), (w2[:64], "w2"), (b2, "b2"))])
+    src, dst = tmp_path / "f32.onnx", tmp_path / "q.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(src))
+    info = quantize_matmuls(src, dst, quantize=lambda name: name.startswith("/mlp/"))
+    ops = [n.op_type for n in onnx.load(str(dst)).graph.node]
+    assert info["layers"] == ["/mlp/Gemm_matmul"] and ops.count("MatMulNBits") == 1 and ops.count("Gemm") == 1
+    x = rng.standard_normal((16, 100)).astype(np.float32)
+    want = np.maximum(x @ w1.T + b1, 0.0) @ w2[:64] + b2
+    got = ort.InferenceSession(str(dst), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
+    np.testing.assert_allclose(got, want, atol=0.05 * np.abs(want).max())
+    with pytest.raises(ValueError, match="quantized already"):
+        quantize_matmuls(dst, tmp_path / "again.onnx", quantize=lambda name: True)

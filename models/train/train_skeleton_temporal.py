@@ -264,17 +264,49 @@ def to_world_of(ex: dict, local: np.ndarray, shape: tuple) -> np.ndarray:
     return out
 
 
-def export_onnx(model: TemporalRefineNet, path: Path, window: int, example: np.ndarray) -> float:
-    """Write the ONNX file (input "window" (B, D), output "joints" (B, 22, 3)); returns the max
-    |onnxruntime - torch| (m) on ``example`` features."""
+def export_onnx(model: TemporalRefineNet, path: Path, window: int, example: np.ndarray) -> dict:
+    """Write the deployed ONNX file (input "window" (B, D), output "joints" (B, 22, 3)): the
+    float32 export with the MLP's weights in 8-bit blocks (``models.train.quantize``: a quarter of
+    the memory traffic per frame); the linear filter path stays float32. Returns the card's record:
+    max |deployed - torch| and |float32 export - torch| (m) on ``example`` features, and how the
+    weights were quantized."""
+    import tempfile
+
+    from models.train.quantize import quantize_matmuls
+
+    want = refine(model, example)
+    with tempfile.TemporaryDirectory() as tmp:
+        fp32 = Path(tmp) / path.name
+        torch.onnx.export(model.eval(), (torch.from_numpy(example[:1]),), str(fp32), input_names=["window"],
+                          output_names=["joints"], dynamic_axes={"window": {0: "batch"}, "joints": {0: "batch"}},
+                          opset_version=17, dynamo=False)
+        fp32_diff = float(np.abs(refine_onnx(fp32, example) - want).max())
+        quantization = quantize_matmuls(fp32, path, quantize=lambda name: name.startswith("/mlp/"))
+    return {"onnx_max_abs_diff_m": float(np.abs(refine_onnx(path, example) - want).max()),
+            "float32_onnx_max_abs_diff_m": fp32_diff, "quantization": quantization}
+
+
+def refine_onnx(path: Path, features: np.ndarray) -> np.ndarray:
+    """The exported model's joints (E, 22, 3) float64 for window features (E, D)."""
     import onnxruntime as ort
 
-    torch.onnx.export(model.eval(), (torch.from_numpy(example[:1]),), str(path), input_names=["window"],
-                      output_names=["joints"], dynamic_axes={"window": {0: "batch"}, "joints": {0: "batch"}},
-                      opset_version=17, dynamo=False)
     sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-    got = sess.run(None, {"window": example})[0]
-    return float(np.abs(got - refine(model, example)).max())
+    return np.concatenate([sess.run(None, {"window": features[a:a + 1024]})[0]
+                           for a in range(0, len(features), 1024)]).astype(np.float64)
+
+
+def validation_results(val: dict, ex: dict, raw_world: np.ndarray, methods: dict[str, np.ndarray]) -> dict:
+    """The card's "val" metrics: per method on the frames where the finder found the performer
+    and on all frames the model estimates (a lagging model gives none for the first of a take)."""
+    estimated = np.zeros_like(val["found"])
+    estimated[ex["seq"], ex["frame"]] = True
+    on_performer = np.zeros_like(val["found"])
+    on_performer[ex["seq"], ex["frame"]] = ex["on_performer"]
+    methods = {"per_frame": raw_world, "one_euro": one_euro(val, raw_world), **methods}
+    return {"on_performer": sequence_metrics(val, methods, on_performer),
+            "all_found_frames": sequence_metrics(val, methods, estimated),
+            "finder": {"found_frames": int(val["found"].sum()), "estimated_frames": int(estimated.sum()),
+                       "on_clutter_frames": int(estimated.sum() - on_performer.sum())}}
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -320,19 +352,12 @@ def main(argv: list[str] | None = None) -> dict:
                        progress)
     val, ex = data["val"], examples["val"]
     raw_world = per_frame["val"][0]
-    refined = to_world_of(ex, refine(model, ex["features"]), raw_world.shape)
-    methods = {"per_frame": raw_world, "one_euro": one_euro(val, raw_world), "temporal": refined}
-    # Scored: the frames the model estimates (a lagging model gives none for the first of a take).
-    estimated = np.zeros_like(val["found"])
-    estimated[ex["seq"], ex["frame"]] = True
-    on_performer = np.zeros_like(val["found"])
-    on_performer[ex["seq"], ex["frame"]] = ex["on_performer"]
-    results = {"on_performer": sequence_metrics(val, methods, on_performer),
-               "all_found_frames": sequence_metrics(val, methods, estimated),
-               "finder": {"found_frames": int(val["found"].sum()), "estimated_frames": int(estimated.sum()),
-                          "on_clutter_frames": int(estimated.sum() - on_performer.sum())}}
     onnx_path = out_dir / temporal_model_path(args.lag).name
-    diff = export_onnx(model, onnx_path, args.window, ex["features"][:8])
+    export = export_onnx(model, onnx_path, args.window, ex["features"][:8])
+    # Scored: the deployed file (quantized), and the float32 network it came from beside it.
+    results = validation_results(val, ex, raw_world, {
+        "temporal": to_world_of(ex, refine_onnx(onnx_path, ex["features"]), raw_world.shape),
+        "temporal_float32": to_world_of(ex, refine(model, ex["features"]), raw_world.shape)})
     card = {
         "model": "skeleton_temporal", "file": onnx_path.name, "architecture": "TemporalRefineNet (MLP)",
         "parameters": int(sum(p.numel() for p in model.parameters())),
@@ -343,7 +368,7 @@ def main(argv: list[str] | None = None) -> dict:
         "output": {"name": "joints", "shape": ["batch", 22, 3], "frame": "person frame of the newest frame",
                    "joints_of": "the frame lag samples before the newest one (lag 0: the newest)"},
         "regressor": args.regressor.name, "regressor_sha256": file_sha256(args.regressor),
-        "onnx_opset": 17, "onnx_max_abs_diff_m": diff,
+        "onnx_opset": 17, **export,
         "recipe": {"epochs": epochs, "lr": args.lr, "acc_weight": args.acc_weight, "batch": 256,
                    "optimizer": "AdamW, weight decay 1e-4, one-cycle", "net": args.net,
                    "loss": "L1 joints of 3 consecutive frames + acc_weight x acceleration error",
