@@ -28,8 +28,8 @@ def quantize_shipped(lag: int, workers: int, threads: int) -> dict | None:
     from models.skeleton.runtime import DEFAULT_MODEL
     from models.skeleton.temporal import temporal_model_path
     from models.train.quantize import quantize_matmuls
-    from models.train.train_skeleton_temporal import (build_examples, refine_onnx, regress_sequences, to_world_of,
-                                                      validation_results)
+    from models.train.train_skeleton_temporal import (build_examples, quantization_deviation, refine_onnx,
+                                                      regress_sequences, to_world_of, validation_results)
     from sim.skeleton_sequences import generate_sequences
 
     path = temporal_model_path(lag)
@@ -52,11 +52,7 @@ def quantize_shipped(lag: int, workers: int, threads: int) -> dict | None:
         "temporal_float32": to_world_of(ex, reference, world.shape)})
     card["float32_onnx_max_abs_diff_m"] = card.pop("onnx_max_abs_diff_m")
     card["onnx_max_abs_diff_m"] = float(np.abs(deployed - reference).max())  # against the float32 export
-    moved = np.linalg.norm(deployed - reference, axis=-1)  # per joint and window, m
-    card["quantization_deviation_m"] = {"mean": round(float(moved.mean()), 5),
-                                        "p99": round(float(np.percentile(moved, 99)), 5),
-                                        "max": round(float(moved.max()), 5),
-                                        "of": "the deployed file's joints against the float32 export's, val windows"}
+    card["quantization_deviation_m"] = quantization_deviation(deployed, reference)
     card["quantization"] = {**quantization, "by": "python -m models.train.quantize_temporal (float32 export "
                                                    "quantized without retraining)"}
     card_path.write_text(json.dumps(card, indent=1) + "\n")

@@ -295,6 +295,14 @@ def refine_onnx(path: Path, features: np.ndarray) -> np.ndarray:
                            for a in range(0, len(features), 1024)]).astype(np.float64)
 
 
+def quantization_deviation(deployed: np.ndarray, reference: np.ndarray) -> dict:
+    """How far the deployed file's joints (E, 22, 3) lie from the float32 network's (m)."""
+    moved = np.linalg.norm(deployed - reference, axis=-1)
+    return {"mean": round(float(moved.mean()), 5), "p99": round(float(np.percentile(moved, 99)), 5),
+            "max": round(float(moved.max()), 5),
+            "of": "the deployed file's joints against the float32 network's, val windows"}
+
+
 def validation_results(val: dict, ex: dict, raw_world: np.ndarray, methods: dict[str, np.ndarray]) -> dict:
     """The card's "val" metrics: per method on the frames where the finder found the performer
     and on all frames the model estimates (a lagging model gives none for the first of a take)."""
@@ -355,9 +363,9 @@ def main(argv: list[str] | None = None) -> dict:
     onnx_path = out_dir / temporal_model_path(args.lag).name
     export = export_onnx(model, onnx_path, args.window, ex["features"][:8])
     # Scored: the deployed file (quantized), and the float32 network it came from beside it.
-    results = validation_results(val, ex, raw_world, {
-        "temporal": to_world_of(ex, refine_onnx(onnx_path, ex["features"]), raw_world.shape),
-        "temporal_float32": to_world_of(ex, refine(model, ex["features"]), raw_world.shape)})
+    deployed, reference = refine_onnx(onnx_path, ex["features"]), refine(model, ex["features"])
+    results = validation_results(val, ex, raw_world, {"temporal": to_world_of(ex, deployed, raw_world.shape),
+                                                      "temporal_float32": to_world_of(ex, reference, raw_world.shape)})
     card = {
         "model": "skeleton_temporal", "file": onnx_path.name, "architecture": "TemporalRefineNet (MLP)",
         "parameters": int(sum(p.numel() for p in model.parameters())),
@@ -368,7 +376,7 @@ def main(argv: list[str] | None = None) -> dict:
         "output": {"name": "joints", "shape": ["batch", 22, 3], "frame": "person frame of the newest frame",
                    "joints_of": "the frame lag samples before the newest one (lag 0: the newest)"},
         "regressor": args.regressor.name, "regressor_sha256": file_sha256(args.regressor),
-        "onnx_opset": 17, **export,
+        "onnx_opset": 17, **export, "quantization_deviation_m": quantization_deviation(deployed, reference),
         "recipe": {"epochs": epochs, "lr": args.lr, "acc_weight": args.acc_weight, "batch": 256,
                    "optimizer": "AdamW, weight decay 1e-4, one-cycle", "net": args.net,
                    "loss": "L1 joints of 3 consecutive frames + acc_weight x acceleration error",
