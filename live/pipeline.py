@@ -219,6 +219,36 @@ class Pipeline:
             arrival, heads[i] = heads[i], None
             self._handle(arrival)
 
+    def _run_inline(self, stop: threading.Event) -> None:
+        """Every mode with one source: the source runs in this thread, and each frame it emits
+        goes through its ring and is handled before the source reads the next one. A source
+        thread would only read ahead, and its decoding then takes the GIL from the stages each
+        time they release it (on the bundled demo the person finder waited 3.7 ms a frame for it:
+        6.2 ms of wall time for 2.5 of its own)."""
+        run = self._runs[0]
+        emit = self._emit_for(run, stop)
+        handling: list[BaseException] = []
+
+        def emit_and_handle(frame: object) -> None:
+            emit(frame)
+            try:
+                while (arrival := self._next_of(run, 0.0)) is not None:
+                    self._handle(arrival)
+            except BaseException as exc:  # the consumer's own failure, not the source's
+                handling.append(exc)
+                raise
+
+        try:
+            run.source.run(emit_and_handle, stop)
+        except Exception as exc:  # noqa: BLE001 - a dead source must not take the pipeline down
+            if handling and exc is handling[0]:
+                raise
+            run.error = f"{type(exc).__name__}: {exc}"
+            log.error("source %s stopped: %s", run.source.name, run.error)
+        finally:
+            run.done.set()
+            run.ring.close()
+
     def _run_latest(self, stop: threading.Event) -> None:
         pending: list[_Arrival] = []
         while not stop.is_set():
@@ -248,12 +278,15 @@ class Pipeline:
     def run(self, stop: threading.Event | None = None) -> dict:
         stop = stop or threading.Event()
         t0 = time.perf_counter()
-        for run in self._runs:
+        inline = self.mode == "every" and len(self._runs) == 1
+        for run in [] if inline else self._runs:
             run.thread = threading.Thread(target=self._source_main, args=(run, stop),
                                           name=f"source-{run.source.name}", daemon=True)
             run.thread.start()
         try:
-            if self.mode == "every":
+            if inline:
+                self._run_inline(stop)
+            elif self.mode == "every":
                 self._run_every(stop)
             else:
                 self._run_latest(stop)
@@ -261,7 +294,8 @@ class Pipeline:
             stop.set()
             for run in self._runs:
                 run.ring.close()
-                run.thread.join(timeout=1.0)
+                if run.thread is not None:
+                    run.thread.join(timeout=1.0)
             for sink in self.sinks:
                 try:
                     sink.close()

@@ -138,6 +138,42 @@ def test_a_failing_source_does_not_crash_the_pipeline():
     assert "camera unplugged" in stats["sources"]["src"]["error"]
 
 
+def test_every_mode_with_one_source_runs_it_in_the_callers_thread():
+    """No read-ahead thread competes with the stages for the GIL; each frame is handled before
+    the source reads the next one, and a stop from a stage's thread still ends it."""
+    seen = []
+
+    class Recording(ListSource):
+        def run(self, emit, stop):
+            seen.append(threading.current_thread())
+            super().run(emit, stop)
+
+    stop = threading.Event()
+    stage = CentroidStage()
+    stage_calls = []
+    process = stage.process
+
+    def process_and_stop(result):
+        stage_calls.append(len(stage.out))
+        if len(stage.out) == 29:
+            stop.set()
+        return process(result)
+
+    stage.process = process_and_stop
+    stats = Pipeline([Recording(_clouds(100))], [stage], mode="every", ring_capacity=2).run(stop)
+    assert seen == [threading.current_thread()]
+    assert stats["frames"] == 30 and stage_calls == list(range(30))
+    assert stats["ring_wait_ms"]["count"] == 30
+
+
+def test_a_failing_consumer_is_not_taken_for_a_failing_source():
+    def broken(result):
+        raise ValueError("bug in on_result")
+
+    with pytest.raises(ValueError, match="bug in on_result"):
+        Pipeline([ListSource(_clouds(5))], [CentroidStage()], mode="every", on_result=broken).run()
+
+
 def test_a_failing_sink_is_counted():
     class Broken:
         def send(self, result):
