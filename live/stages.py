@@ -53,6 +53,12 @@ class RetargetStage:
         self.warmup = warmup
         self.use_truth = use_truth
         self.model_path = model_path
+        # Load now what the performer's first frame would otherwise wait for (~130 ms: the body
+        # library's mean T-pose that estimate_rest_joints takes its bone directions from).
+        from live.body import mean_rest_template
+        from live.retarget.analytic import estimate_rest_joints  # noqa: F401 - imported once, here
+
+        mean_rest_template()
         self._seen: list[np.ndarray] = []
         self._retargeter = None
         self._last_t_ns: int | None = None

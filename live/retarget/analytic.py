@@ -264,6 +264,9 @@ def retarget(
     return np.array(rotations, dtype=np.float64, copy=True), np.asarray(root, dtype=np.float64) * ratio
 
 
+_BONE_ENDS = (np.array([p for p, _ in BONES]), np.array([c for _, c in BONES]))
+
+
 def estimate_rest_joints(joints: np.ndarray, template: np.ndarray | None = None) -> np.ndarray:
     """A T-pose rest skeleton (22 x 3) for a performer seen only as posed joints (T x 22 x 3).
 
@@ -281,10 +284,12 @@ def estimate_rest_joints(joints: np.ndarray, template: np.ndarray | None = None)
         template = mean_rest_template()
     tpl = np.asarray(default_rest_joints() if template is None else template, dtype=np.float64)
     tpl_off = rest_offsets(tpl)
+    parents, children = _BONE_ENDS
+    lengths = np.median(np.linalg.norm(joints[:, children] - joints[:, parents], axis=-1), axis=0)
+    dirs = normalize(tpl_off)
     rest = np.zeros((NUM_JOINTS, 3))
-    for p, c in BONES:
-        length = np.median(np.linalg.norm(joints[:, c] - joints[:, p], axis=-1))
-        rest[c] = rest[p] + normalize(tpl_off[c]) * length
+    for (p, c), length in zip(BONES, lengths.tolist()):
+        rest[c] = rest[p] + dirs[c] * length
     feet = [_J["left_ankle"], _J["right_ankle"], _J["left_foot"], _J["right_foot"]]
     drop = -rest[feet, 1].min()
     # The template's lowest foot joint sits above the floor by a fraction of its leg length.
