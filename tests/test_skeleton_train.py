@@ -174,7 +174,8 @@ def test_weight_quantization_keeps_unselected_layers_in_float32(tmp_path):
     onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), str(src))
     info = quantize_matmuls(src, dst, quantize=lambda name: name.startswith("/mlp/"))
     ops = [n.op_type for n in onnx.load(str(dst)).graph.node]
-    assert info["layers"] == ["/mlp/Gemm_matmul"] and ops.count("MatMulNBits") == 1 and ops.count("Gemm") == 1
+    assert info["layers"] == ["/mlp/Gemm_matmul"] and info["float32_layers"] == ["/linear/Gemm"]
+    assert ops.count("MatMulNBits") == 1 and ops.count("Gemm") == 1
     x = rng.standard_normal((16, 100)).astype(np.float32)
     want = np.maximum(x @ w1.T + b1, 0.0) @ w2[:64] + b2
     got = ort.InferenceSession(str(dst), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]

@@ -5,9 +5,9 @@ call streams its whole weight matrices through the core; between two frames the 
 and the regressor push them out of the caches, and 5.5 MB of float32 weights then come from
 memory on every frame (0.9 ms in the stage against 0.18 ms in a tight loop). Blockwise 8-bit
 weights (scales per 32 inputs, onnxruntime's int8 kernel, ``accuracy_level`` 4) are a quarter
-of that. Only layers whose rounding the model absorbs are quantized: ``keep`` names the layers
-left in float32 (the temporal model's linear filter path, whose output is added to the
-estimate as it is).
+of that. Only layers whose rounding the model absorbs are quantized: ``quantize`` selects them
+by node name, the others stay float32 (the temporal model's linear filter path, whose output is
+added to the estimate as it is).
 
     quantize_matmuls(src_path, dst_path, quantize=lambda name: name.startswith("/mlp/"))
 """
@@ -71,10 +71,10 @@ def quantize_matmuls(src: Path, dst: Path, quantize: Callable[[str], bool]) -> d
     selected = gemms_as_matmuls(model, quantize)
     selected += [n.name for n in model.graph.node if n.op_type == "MatMul" and quantize(n.name)
                  and n.name not in selected]
-    others = [n.name for n in model.graph.node if n.op_type == "MatMul" and n.name not in selected]
+    others = [n.name for n in model.graph.node if n.op_type in ("Gemm", "MatMul") and n.name not in selected]
     config = DefaultWeightOnlyQuantConfig(block_size=BLOCK_SIZE, is_symmetric=True, accuracy_level=ACCURACY_LEVEL,
                                           bits=BITS)
-    quantizer = MatMulNBitsQuantizer(model, algo_config=config, nodes_to_exclude=others)
+    quantizer = MatMulNBitsQuantizer(model, algo_config=config, nodes_to_exclude=others)  # it reads MatMuls only
     quantizer.process()
     quantizer.model.save_model_to_file(str(dst), False)
     out = onnx.load(str(dst))
