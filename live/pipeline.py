@@ -82,6 +82,7 @@ class Pipeline:
         recorder: SessionWriter | None = None,
         ring_capacity: int = 64,
         on_result: Callable[[FrameResult], None] | None = None,
+        inline: bool = True,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}")
@@ -90,6 +91,9 @@ class Pipeline:
         self.sinks = list(sinks)
         self.recorder = recorder
         self.on_result = on_result
+        # Every mode with one source runs it in the caller's thread (``_run_inline``); False keeps
+        # a source thread (what benchmarks/bench_replay.py compares it with).
+        self.inline = inline
         self._record_lock = threading.Lock()
         self._runs = []
         for src in sources:
@@ -278,7 +282,7 @@ class Pipeline:
     def run(self, stop: threading.Event | None = None) -> dict:
         stop = stop or threading.Event()
         t0 = time.perf_counter()
-        inline = self.mode == "every" and len(self._runs) == 1
+        inline = self.inline and self.mode == "every" and len(self._runs) == 1
         for run in [] if inline else self._runs:
             run.thread = threading.Thread(target=self._source_main, args=(run, stop),
                                           name=f"source-{run.source.name}", daemon=True)

@@ -166,6 +166,24 @@ def test_every_mode_with_one_source_runs_it_in_the_callers_thread():
     assert stats["ring_wait_ms"]["count"] == 30
 
 
+def test_inline_false_keeps_a_source_thread_with_the_same_results():
+    seen = []
+
+    class Recording(ListSource):
+        def run(self, emit, stop):
+            seen.append(threading.current_thread())
+            super().run(emit, stop)
+
+    frames = _clouds(40)
+    outs = []
+    for inline in (True, False):
+        stage = CentroidStage()
+        Pipeline([Recording(frames)], [stage], mode="every", ring_capacity=3, inline=inline).run()
+        outs.append(np.array([c for _, c, _ in stage.out]))
+    assert seen[0] is threading.current_thread() and seen[1] is not threading.current_thread()
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
 def test_a_failing_consumer_is_not_taken_for_a_failing_source():
     def broken(result):
         raise ValueError("bug in on_result")
