@@ -28,8 +28,9 @@ def quantize_shipped(lag: int, workers: int, threads: int) -> dict | None:
     from models.skeleton.runtime import DEFAULT_MODEL
     from models.skeleton.temporal import temporal_model_path
     from models.train.quantize import quantize_matmuls
-    from models.train.train_skeleton_temporal import (build_examples, quantization_deviation, refine_onnx,
-                                                      regress_sequences, to_world_of, validation_results)
+    from models.train.train_skeleton_temporal import (build_examples, quantization_deviation, quantized_layer,
+                                                      refine_onnx, regress_sequences, to_world_of,
+                                                      validation_results)
     from sim.skeleton_sequences import generate_sequences
 
     path = temporal_model_path(lag)
@@ -44,7 +45,7 @@ def quantize_shipped(lag: int, workers: int, threads: int) -> dict | None:
     with tempfile.TemporaryDirectory() as tmp:
         fp32 = Path(tmp) / path.name
         shutil.copyfile(path, fp32)
-        quantization = quantize_matmuls(fp32, path, quantize=lambda name: name.startswith("/mlp/"))
+        quantization = quantize_matmuls(fp32, path, quantize=quantized_layer)
         reference = refine_onnx(fp32, ex["features"])
     deployed = refine_onnx(path, ex["features"])
     card["metrics"]["val"] = validation_results(val, ex, world, {

@@ -264,6 +264,12 @@ def to_world_of(ex: dict, local: np.ndarray, shape: tuple) -> np.ndarray:
     return out
 
 
+def quantized_layer(name: str) -> bool:
+    """The exported layers whose weights ship in 8 bits: the MLP's (the linear filter path's
+    output is added to the estimate as it is, so it stays float32)."""
+    return name.startswith("/mlp/")
+
+
 def export_onnx(model: TemporalRefineNet, path: Path, window: int, example: np.ndarray) -> dict:
     """Write the deployed ONNX file (input "window" (B, D), output "joints" (B, 22, 3)): the
     float32 export with the MLP's weights in 8-bit blocks (``models.train.quantize``: a quarter of
@@ -281,7 +287,7 @@ def export_onnx(model: TemporalRefineNet, path: Path, window: int, example: np.n
                           output_names=["joints"], dynamic_axes={"window": {0: "batch"}, "joints": {0: "batch"}},
                           opset_version=17, dynamo=False)
         fp32_diff = float(np.abs(refine_onnx(fp32, example) - want).max())
-        quantization = quantize_matmuls(fp32, path, quantize=lambda name: name.startswith("/mlp/"))
+        quantization = quantize_matmuls(fp32, path, quantize=quantized_layer)
     return {"onnx_max_abs_diff_m": float(np.abs(refine_onnx(path, example) - want).max()),
             "float32_onnx_max_abs_diff_m": fp32_diff, "quantization": quantization}
 
