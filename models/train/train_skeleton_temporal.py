@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -397,7 +398,7 @@ def main(argv: list[str] | None = None) -> dict:
                           "the per-frame card); all_found_frames: also frames where it picked clutter"},
         "metrics": {"val": results}, "seed": args.seed, "threads": args.threads,
         "command": "python -m models.train.train_skeleton_temporal "
-                   + " ".join(argv if argv is not None else sys.argv[1:]),
+                   + shlex.join(argv if argv is not None else sys.argv[1:]),
         "software": {"torch": torch.__version__, "python": platform.python_version()},
     }
     onnx_path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
