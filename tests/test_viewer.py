@@ -23,7 +23,7 @@ from live.skeleton import default_rest_joints
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
 
-from live.outputs.viewer import RerunSink, rerun_binary  # noqa: E402
+from live.outputs.viewer import LEFT_RGB, RIGHT_RGB, RerunSink, confidence_rgb, rerun_binary  # noqa: E402
 
 
 def _rerun_cli() -> str:
@@ -191,10 +191,11 @@ def _screenshots(browser: str, url: str, profile: Path, timeout_s: float):
 
 
 def _skeleton_pixels(img_bgr: np.ndarray) -> tuple[int, int, int]:
-    """Pixels below the viewer's top bar in the left (warm) and right (cool) bone colours and in
-    the colour of joints of confidence 0.8 (the sink's red-to-green scale)."""
+    """Pixels below the viewer's top bar in the left and right bone colours and in the colour of
+    joints of confidence 0.8 (what ``_results`` logs)."""
     rgb = img_bgr[40:, :, ::-1].astype(np.int16)
-    return tuple(int((np.abs(rgb - colour).max(-1) <= 20).sum()) for colour in ((255, 160, 60), (60, 160, 255), (51, 204, 0)))
+    colours = (LEFT_RGB, RIGHT_RGB, tuple(confidence_rgb(np.array([0.8]))[0]))
+    return tuple(int((np.abs(rgb - np.array(c, np.int16)).max(-1) <= 20).sum()) for c in colours)
 
 
 @pytest.mark.skipif(_BROWSER is None, reason="no headless Chromium installed: the web-viewer screenshot test needs one (lead's call)")

@@ -40,12 +40,19 @@ log = logging.getLogger(__name__)
 
 MODES = ("spawn", "web", "save")
 _BONE_PAIRS = np.array(BONES, dtype=np.int64)
-# RGB: performer's left warm, right cool, centre light grey.
+# Bone colours (RGB): the performer's left warm, right cool, centre light grey.
+LEFT_RGB, RIGHT_RGB, CENTRE_RGB = (255, 160, 60), (60, 160, 255), (220, 220, 220)
 _BONE_RGB = np.array(
-    [(255, 160, 60) if JOINT_NAMES[c].startswith("left") else (60, 160, 255) if JOINT_NAMES[c].startswith("right") else (220, 220, 220)
+    [LEFT_RGB if JOINT_NAMES[c].startswith("left") else RIGHT_RGB if JOINT_NAMES[c].startswith("right") else CENTRE_RGB
      for _, c in BONES],
     dtype=np.uint8,
 )
+
+
+def confidence_rgb(confidence: np.ndarray) -> np.ndarray:
+    """(J, 3) uint8 joint colours from (J,) confidences: red at 0 to green at 1 (clipped)."""
+    conf = np.clip(np.asarray(confidence, dtype=np.float64), 0.0, 1.0)
+    return np.stack([255 * (1 - conf), 255 * conf, np.zeros_like(conf)], -1).astype(np.uint8)
 
 
 def import_rerun():
@@ -187,9 +194,7 @@ class RerunSink:
             rec.log("world/depth", rr.Points3D(points_to_world(pts, depth.camera_to_world), radii=0.004,
                                                colors=(170, 170, 170)))
         if result.skeleton is not None:
-            conf = np.clip(np.asarray(result.skeleton.confidence, dtype=np.float64), 0.0, 1.0)
-            colours = np.stack([255 * (1 - conf), 255 * conf, np.zeros_like(conf)], -1).astype(np.uint8)
-            self._log_skeleton("world/performer", result.skeleton.joints, colours)
+            self._log_skeleton("world/performer", result.skeleton.joints, confidence_rgb(result.skeleton.confidence))
         avatar = result.avatar
         if avatar is not None:
             if avatar.joints is not None:
