@@ -130,10 +130,7 @@ def test_reexport_rebuilds_the_training_graph_and_moves_temporal_cards(tmp_path)
 
     net = _trained_looking_voting_net()
     path = tmp_path / "skeleton.onnx"
-    example = _clouds(1)
-    torch.onnx.export(net, (example,), str(path), input_names=["points"], output_names=["joints"],
-                      dynamic_axes={"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}},
-                      opset_version=17, dynamo=False)  # the training-form graph of earlier exports
+    _export_training_form(net, path)
     card = {"architecture": "VotingPointNet", "num_points": 64, "input": {"shape": ["batch", "num_points", 3]},
             "recipe": {"net": {"refine_k": 8, "refine_width": 16}}}
     path.with_suffix(".json").write_text(json.dumps(card))
@@ -147,6 +144,34 @@ def test_reexport_rebuilds_the_training_graph_and_moves_temporal_cards(tmp_path)
     assert json.loads(path.with_suffix(".json").read_text())["export"]["form"] == "DeployedVotingPointNet"
     with pytest.raises(SystemExit, match="no re-export"):
         main(["--model", str(path)])  # already deployed
+
+
+def _export_training_form(net, path):
+    """The training-form graph of earlier exports (what ``--init`` and the re-export read)."""
+    torch.onnx.export(net, (_clouds(1),), str(path), input_names=["points"], output_names=["joints"],
+                      dynamic_axes={"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}},
+                      opset_version=17, dynamo=False)
+
+
+def test_fine_tune_starts_from_the_init_weights(tmp_path):
+    """--init: training starts from the exported network's weights and BatchNorm statistics,
+    not from a random initialisation."""
+    from models.train.train_skeleton import Recipe, train_model
+
+    net = _trained_looking_voting_net()
+    path = tmp_path / "base.onnx"
+    _export_training_form(net, path)
+    rng = np.random.default_rng(0)
+    train = {"points": _clouds(8).numpy(), "joints": rng.normal(size=(8, 22, 3)).astype(np.float32)}
+    recipe = Recipe("ours", epochs=1, batch=4, lr=1e-12, loss="l1", num_points=64, schedule="constant",
+                    max_steps=1, net={"refine_k": 8, "refine_width": 16})
+    tuned, log = train_model(recipe, train, seed=1, progress=False, init=path)  # not the seed of net
+    assert log["steps"] == 1
+    start = dict(net.named_parameters())
+    for name, param in tuned.named_parameters():
+        assert torch.allclose(param, start[name], atol=1e-6), name  # a 1e-12 step moves nothing
+    # (the BatchNorm scales of the base are not the 1.0 of a fresh network)
+    assert not torch.allclose(tuned.local[1].norm.weight, torch.ones(()))
 
 
 def test_weight_quantization_keeps_unselected_layers_in_float32(tmp_path):

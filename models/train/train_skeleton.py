@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shlex
 import sys
 import time
 from dataclasses import dataclass, field
@@ -76,13 +77,20 @@ def _batches(data: dict, recipe: Recipe, rng: np.random.Generator):
         yield torch.from_numpy(pts), torch.from_numpy(jts)
 
 
-def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True) -> tuple[torch.nn.Module, dict]:
-    """Train one network; returns it (eval mode) and a log of the run."""
+def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True,
+                init: Path | None = None) -> tuple[torch.nn.Module, dict]:
+    """Train one network; returns it (eval mode) and a log of the run. ``init``: start from the
+    weights (BatchNorm statistics included) of a training-form ONNX export of the same network
+    instead of a random initialisation (a fine-tune; the optimiser state starts afresh)."""
     from tqdm import tqdm
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = build(recipe.kind, **recipe.net)
+    if init is not None:
+        from models.train.reexport_skeleton import load_training_graph
+
+        model = load_training_graph(init, model).train()
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr)
     steps_per_epoch = len(train["points"]) // recipe.batch
     total = max(steps_per_epoch * recipe.epochs, 1)
@@ -169,6 +177,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--n-train", type=int, default=None)
     p.add_argument("--n-val", type=int, default=None)
     p.add_argument("--epochs", type=int, default=None, help="override the recipe's epochs")
+    p.add_argument("--lr", type=float, default=None, help="override the recipe's peak learning rate")
+    p.add_argument("--init", type=Path, default=None, metavar="ONNX",
+                   help="fine-tune: start from a training-form export of the same network (see docs/skeleton.md)")
     p.add_argument("--net", type=json.loads, default=None, metavar="JSON",
                    help='override the network options of "ours", e.g. \'{"refine_k": 0}\' (ablations)')
     p.add_argument("--seed", type=int, default=0)
@@ -182,6 +193,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> dict:
     """Entry point of ``livecap train skeleton``; returns {kind: card}."""
+    from models.skeleton.temporal import file_sha256
     from sim.skeleton_data import VAL_SUBJECTS, describe, generate, split_bodies
 
     args = _parse(argv)
@@ -208,7 +220,12 @@ def main(argv: list[str] | None = None) -> dict:
                                "max_steps": 4 if args.quick else recipe.max_steps})
         if args.net is not None and kind == "ours":
             recipe = Recipe(**{**recipe.__dict__, "net": args.net})
-        model, log = train_model(recipe, data["train"], seed=args.seed, progress=progress)
+        if args.lr is not None:
+            recipe = Recipe(**{**recipe.__dict__, "lr": args.lr})
+        init = args.init if kind == "ours" else None
+        model, log = train_model(recipe, data["train"], seed=args.seed, progress=progress, init=init)
+        if init is not None:
+            log["init"] = {"file": str(init), "sha256": file_sha256(init)}
         results = {}
         for split in ("val", "val_upper"):
             d = data[split]
@@ -238,7 +255,7 @@ def main(argv: list[str] | None = None) -> dict:
                               "val_upper: close-ups (0.8-1.4 m, legs out of frame), same held-out sets"},
             "metrics": results, "seed": args.seed, "threads": args.threads,
             "command": "python -m models.train.train_skeleton "
-                       + " ".join(argv if argv is not None else sys.argv[1:]),
+                       + shlex.join(argv if argv is not None else sys.argv[1:]),
             "software": {"torch": torch.__version__, "python": platform.python_version()},
         }
         (out_dir / f"{name}.json").write_text(json.dumps(cards[kind], indent=1) + "\n")
