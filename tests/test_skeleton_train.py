@@ -174,6 +174,32 @@ def test_fine_tune_starts_from_the_init_weights(tmp_path):
     assert not torch.allclose(tuned.local[1].norm.weight, torch.ones(()))
 
 
+def test_deployed_export_unfolds_into_a_trainable_net(tmp_path):
+    """A deployed file (BatchNorm folded) read back into the training network: eval mode computes
+    the file's joints, train mode on the calibration clouds too (the unfolded BatchNorms take
+    their statistics from them), and ``train_model(init=)`` accepts it."""
+    from models.train.reexport_skeleton import is_training_form, load_deployed_graph, run_onnx
+    from models.train.skeleton_nets import VotingPointNet, export_onnx
+    from models.train.train_skeleton import Recipe, train_model
+
+    path = tmp_path / "skeleton.onnx"
+    export_onnx(_trained_looking_voting_net(), str(path), 64)
+    assert not is_training_form(path)
+    calibration = _clouds(6).numpy()
+    torch.manual_seed(5)  # a different random start: everything must come from the file
+    net = load_deployed_graph(path, VotingPointNet(refine_k=8, refine_width=16), 64, calibration)
+    x = _clouds(4).numpy() + np.float32(0.01)
+    with torch.no_grad():
+        assert np.abs(net(torch.from_numpy(x)).numpy() - run_onnx(path, x)).max() < 1e-4
+        assert np.abs(net.train()(torch.from_numpy(calibration)).numpy() - run_onnx(path, calibration)).max() < 1e-4
+    train = {"points": calibration, "joints": np.zeros((6, 22, 3), np.float32)}
+    recipe = Recipe("ours", epochs=1, batch=3, lr=1e-12, loss="l1", num_points=64, schedule="constant",
+                    max_steps=1, net={"refine_k": 8, "refine_width": 16})
+    tuned, _ = train_model(recipe, train, seed=1, progress=False, init=path)
+    with torch.no_grad():  # one step in train mode moved only the BatchNorm running statistics a little
+        assert np.abs(tuned(torch.from_numpy(x)).numpy() - run_onnx(path, x)).max() < 0.05
+
+
 def test_weight_quantization_keeps_unselected_layers_in_float32(tmp_path):
     """models.train.quantize: the selected Gemm layers become 8-bit MatMulNBits, the others stay
     as they were, and the quantized graph computes the same function to the rounding of its

@@ -80,17 +80,18 @@ def _batches(data: dict, recipe: Recipe, rng: np.random.Generator):
 def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True,
                 init: Path | None = None) -> tuple[torch.nn.Module, dict]:
     """Train one network; returns it (eval mode) and a log of the run. ``init``: start from the
-    weights (BatchNorm statistics included) of a training-form ONNX export of the same network
-    instead of a random initialisation (a fine-tune; the optimiser state starts afresh)."""
+    weights of an ONNX export of the same network, either form (the training graph with its
+    BatchNorm statistics, or the deployed one, unfolded on the first training clouds), instead of
+    a random initialisation: a fine-tune; the optimiser state starts afresh."""
     from tqdm import tqdm
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     model = build(recipe.kind, **recipe.net)
     if init is not None:
-        from models.train.reexport_skeleton import load_training_graph
+        from models.train.reexport_skeleton import load_export
 
-        model = load_training_graph(init, model).train()
+        model = load_export(init, model, recipe.num_points, train["points"][:256, :recipe.num_points]).train()
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr)
     steps_per_epoch = len(train["points"]) // recipe.batch
     total = max(steps_per_epoch * recipe.epochs, 1)
@@ -179,7 +180,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--epochs", type=int, default=None, help="override the recipe's epochs")
     p.add_argument("--lr", type=float, default=None, help="override the recipe's peak learning rate")
     p.add_argument("--init", type=Path, default=None, metavar="ONNX",
-                   help="fine-tune: start from a training-form export of the same network (see docs/skeleton.md)")
+                   help="fine-tune: start from an export of the same network, e.g. the shipped one (docs/skeleton.md)")
     p.add_argument("--net", type=json.loads, default=None, metavar="JSON",
                    help='override the network options of "ours", e.g. \'{"refine_k": 0}\' (ablations)')
     p.add_argument("--seed", type=int, default=0)
