@@ -80,19 +80,11 @@ def _get(slot):
 
 
 def _set(slot, value: torch.Tensor) -> None:
-    box, key, i = slot
+    box, key, i = slot  # every container is a list or a dict (see load_deployed_graph)
     if i is None:
         box[key] = value
-        return
-    parent = box[key] if key is not None else box
-    items = list(parent)
-    items[i] = value
-    if key is not None:
-        box[key] = tuple(items)
-    elif isinstance(box, list):
-        box[:] = items
     else:
-        raise TypeError("a tuple slot needs its container")
+        (box[key] if key is not None else box)[i] = value
 
 
 def _onnx_constants(path: Path) -> dict[str, np.ndarray]:
