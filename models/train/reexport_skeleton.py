@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.train.skeleton_nets import DeployedVotingPointNet, VotingPointNet, export_onnx
+from models.train.skeleton_nets import DeployedVotingPointNet, VotingPointNet, export_deployed, export_onnx
 
 WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "weights"
 
@@ -120,9 +120,7 @@ def load_deployed_graph(path: Path, net: VotingPointNet, num_points: int, calibr
         _set(slot, torch.randn(_get(slot).shape, generator=gen))
     with tempfile.TemporaryDirectory() as tmp:
         probe = Path(tmp) / "probe.onnx"
-        torch.onnx.export(deployed.eval(), (torch.zeros(1, num_points, 3),), str(probe), input_names=["points"],
-                          output_names=["joints"], dynamic_axes={"points": {0: "batch"}, "joints": {0: "batch"}},
-                          opset_version=17, dynamo=False)
+        export_deployed(deployed, str(probe))
         markers = _onnx_constants(probe)
     target = _onnx_constants(path)
     for slot in slots:

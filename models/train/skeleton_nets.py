@@ -275,10 +275,22 @@ def export_onnx(model: nn.Module, path: str, num_points: int, opset: int = 17) -
     (``DeployedVotingPointNet``, N fixed at ``num_points``); the reference keeps its own graph
     (dynamic N), as published."""
     model = model.eval()
+    if isinstance(model, VotingPointNet):
+        export_deployed(DeployedVotingPointNet(model, num_points), path, opset)
+        return
+    axes = {"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}}
+    torch.onnx.export(model, (_example(num_points),), path, input_names=["points"], output_names=["joints"],
+                      dynamic_axes=axes, opset_version=opset, dynamo=False)
+
+
+def export_deployed(deployed: DeployedVotingPointNet, path: str, opset: int = 17) -> None:
+    """The ONNX graph of a deployed net (also what models.train.reexport_skeleton traces to find
+    which graph constant holds which weight, so both must come from here)."""
+    torch.onnx.export(deployed.eval(), (_example(deployed.n),), path, input_names=["points"], output_names=["joints"],
+                      dynamic_axes={"points": {0: "batch"}, "joints": {0: "batch"}}, opset_version=opset, dynamo=False)
+
+
+def _example(num_points: int) -> torch.Tensor:
     example = torch.zeros(1, num_points, 3)
     example[0, :, 1] = torch.linspace(0.0, 1.7, num_points)
-    axes = {"points": {0: "batch", 1: "num_points"}, "joints": {0: "batch"}}
-    if isinstance(model, VotingPointNet):
-        model, axes = DeployedVotingPointNet(model, num_points).eval(), {"points": {0: "batch"}, "joints": {0: "batch"}}
-    torch.onnx.export(model, (example,), path, input_names=["points"], output_names=["joints"],
-                      dynamic_axes=axes, opset_version=opset, dynamo=False)
+    return example
