@@ -113,6 +113,19 @@ def test_one_euro_is_smooth_when_still_and_follows_motion():
     assert np.abs(out[-1] - moving[-1]).max() < 0.03
 
 
+def test_flip_guard_gives_way_to_a_mirrored_first_frame():
+    """One mirrored first frame must not mirror the whole take: after max_run frames that all
+    disagree with it, the guard follows the estimates."""
+    guard = FlipGuard(max_run=3)
+    guard(JOINTS[LEFT_RIGHT_SWAP])  # the first estimate, mirrored
+    out = [guard(JOINTS + 0.002 * i) for i in range(1, 8)]
+    assert guard.flips == 2 and guard.recoveries == 1
+    assert all(np.abs(o - (JOINTS + 0.002 * i)).max() < 1e-12 for i, o in enumerate(out[2:], start=3))
+    # A glitch of one frame after that is still undone.
+    fixed = guard(JOINTS[LEFT_RIGHT_SWAP] + 0.016)
+    assert guard.flips == 3 and np.abs(fixed - (JOINTS + 0.016)).max() < 1e-12
+
+
 def test_flip_guard_and_bone_keeper():
     guard = FlipGuard()
     walk = JOINTS.copy()

@@ -21,14 +21,18 @@ _LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)
 
 
 class FootPlanter:
-    """foot_lock: hold feet in contact still; floor: keep ankle and foot joints above y = 0."""
+    """foot_lock: hold feet in contact still; floor: keep ankle and foot joints above y = 0.
+    blend_frames, max_slide: the lock's ramp and how far the input may drag it (FootLock);
+    soft_ik: the leg IK's soft reach (live/retarget/ik.py ``soft_reach``)."""
 
     def __init__(self, target_rest: np.ndarray, offsets: np.ndarray, *, foot_lock: bool = True,
-                 floor: bool = True, blend_frames: int = 4, thresholds: ContactThresholds = ContactThresholds()):
+                 floor: bool = True, blend_frames: int = 4, thresholds: ContactThresholds = ContactThresholds(),
+                 max_slide: float = 0.1, soft_ik: float = 0.0):
         self.offsets = np.asarray(offsets, np.float64)
         self.foot_lock, self.floor = foot_lock, floor
+        self.soft_ik = float(soft_ik)
         self.detector = ContactDetector(target_rest, thresholds)
-        self.locker = FootLock(target_rest, blend_frames=blend_frames)
+        self.locker = FootLock(target_rest, blend_frames=blend_frames, max_slide=max_slide)
         self.reset()
 
     @property
@@ -53,4 +57,5 @@ class FootPlanter:
         if self.floor:
             targets = floor_lift(targets, pos[FEET[:, 1]] - ankles)
         if np.max(np.abs(targets - ankles)) > 1e-7:
-            apply_limb_ik(glob, loc, pos, self.offsets, _LEGS, _LEG_HINGES, targets, CHILDREN, PARENTS)
+            apply_limb_ik(glob, loc, pos, self.offsets, _LEGS, _LEG_HINGES, targets, CHILDREN, PARENTS,
+                          self.soft_ik)

@@ -63,12 +63,32 @@ def two_bone_ik(
     return upper, lower
 
 
-def limb_ik(a: v3.Vec, b: v3.Vec, c: v3.Vec, target: v3.Vec, bend_hint: v3.Vec) -> tuple[v3.Mat, v3.Mat]:
+def soft_reach(distance: float, reach: float, soft: float) -> float:
+    """Soft IK (Nicholas): the distance a limb of length ``reach`` is asked to span, eased so it
+    straightens only asymptotically. Up to (1 - soft) x reach it is ``distance``; beyond, it
+    approaches the reach exponentially, with a continuous slope. Near full extension the middle
+    joint's position changes without bound per unit of distance (a knee snaps straight and snaps
+    back), so a target moving past the reach would make the limb pop; eased, the end lags the
+    target by at most soft / e x reach at the reach itself instead."""
+    exact_up_to = reach * (1.0 - soft)
+    if soft <= 0.0 or distance <= exact_up_to:
+        return distance
+    return exact_up_to + soft * reach * (1.0 - math.exp(-(distance - exact_up_to) / (soft * reach)))
+
+
+def limb_ik(a: v3.Vec, b: v3.Vec, c: v3.Vec, target: v3.Vec, bend_hint: v3.Vec, soft: float = 0.0
+            ) -> tuple[v3.Mat, v3.Mat]:
     """``two_bone_ik`` of one limb on plain floats (the per-frame path: a dozen times cheaper
-    than numpy on one limb's 3-vectors); returns (delta_upper, delta_lower) as rows of floats."""
+    than numpy on one limb's 3-vectors); returns (delta_upper, delta_lower) as rows of floats.
+    soft: ease the last ``soft`` of the reach (``soft_reach``; 0 = exact IK)."""
     ab, cb, ac, at = v3.sub(b, a), v3.sub(c, b), v3.sub(c, a), v3.sub(target, a)
     l_ab, l_cb, l_ac = v3.norm(ab), v3.norm(cb), v3.norm(ac)
     reach = l_ab + l_cb
+    if soft > 0.0:
+        l_want = v3.norm(at)
+        eased = soft_reach(l_want, reach, soft)
+        if eased < l_want:
+            at = v3.scale(at, eased / l_want)
     l_at = min(max(v3.norm(at), abs(l_ab - l_cb) + 1e-4 * reach), reach * (1.0 - 1e-4))
     # Interior angles at the root and at the middle joint, wanted (law of cosines) minus now;
     # the bend plane's normal rotates both.
@@ -102,19 +122,21 @@ def apply_limb_ik(
     targets: np.ndarray,
     children: tuple[tuple[int, ...], ...],
     parents: np.ndarray,
+    soft: float = 0.0,
 ) -> None:
     """Pose limbs of one frame so their end joints reach targets, in place.
 
     glob, loc (22, 3, 3) global and local rotations; pos (22, 3) joints; offsets (22, 3) rest
     offsets; limbs (K, 3) joint indices (root, middle, end); hinges (K, 3) rest hinge axes of the
     middle joints; targets (K, 3). The end joints keep their world orientation (a locked foot
-    keeps its angle to the floor) and their descendants move rigidly with them.
+    keeps its angle to the floor) and their descendants move rigidly with them. soft: soft IK
+    (``soft_reach``), 0 = reach the targets exactly.
     """
     for (r, m, e), hinge, target in zip(np.asarray(limbs).tolist(), np.asarray(hinges).tolist(),
                                         np.asarray(targets, np.float64).tolist()):
         g_r0, g_m0, g_e = glob[r].tolist(), glob[m].tolist(), glob[e].tolist()
         a, b, c = pos[r].tolist(), pos[m].tolist(), pos[e].tolist()
-        upper, lower = limb_ik(a, b, c, target, v3.mv(g_r0, hinge))
+        upper, lower = limb_ik(a, b, c, target, v3.mv(g_r0, hinge), soft)
         g_r, g_m = v3.mm(upper, g_r0), v3.mm(lower, g_m0)
         knee = v3.add(a, v3.mv(g_r, offsets[m].tolist()))
         end = v3.add(knee, v3.mv(g_m, offsets[e].tolist()))

@@ -98,11 +98,19 @@ class BoneLengthKeeper:
 
 @dataclass
 class FlipGuard:
-    """Undo whole-body left/right label flips relative to the previous frame."""
+    """Undo whole-body left/right label flips relative to the previous frame.
+
+    A flip is a glitch of a frame or two; when the estimates disagree with the guard's history
+    for ``max_run`` frames in a row, the history was the flip (a first frame estimated mirrored,
+    often at the far end of the range), and the guard follows the estimates again
+    (``recoveries``). Without that, one mirrored first frame would mirror the whole take."""
 
     margin: float = 0.5
+    max_run: int = 3
     flips: int = 0
+    recoveries: int = 0
     _prev: np.ndarray | None = None
+    _run: int = 0
 
     def __call__(self, joints: np.ndarray) -> np.ndarray:
         joints = np.asarray(joints, np.float64)
@@ -111,13 +119,21 @@ class FlipGuard:
             swapped = joints[LEFT_RIGHT_SWAP]
             swap = np.linalg.norm(swapped - self._prev, axis=1).mean()
             if swap < self.margin * keep:
-                joints = swapped
-                self.flips += 1
+                self._run += 1
+                if self._run < self.max_run:
+                    joints = swapped
+                    self.flips += 1
+                else:
+                    self._run = 0
+                    self.recoveries += 1
+            else:
+                self._run = 0
         self._prev = joints
         return joints
 
     def reset(self) -> None:
         self._prev = None
+        self._run = 0
 
 
 def joint_confidence(joints: np.ndarray, points: np.ndarray, radius_m: float = 0.12,
