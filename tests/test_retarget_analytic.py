@@ -231,10 +231,13 @@ def test_foot_lock_holds_sliding_feet_still():
     contacts = detect_contacts(joints, rest, FPS)
     assert contacts.all()
     _, _, free = retarget_motion(rest, rest, joints=joints, fps=FPS, foot_lock=False)
-    _, _, held = retarget_motion(rest, rest, joints=joints, fps=FPS, foot_lock=True, blend_frames=4)
+    _, _, held = retarget_motion(rest, rest, joints=joints, fps=FPS, foot_lock=True, blend_frames=4, soft_ik=0.0)
     ankles = FEET[:, 0]
     assert np.ptp(free[:, ankles, 0], axis=0).min() > 0.05
     assert np.abs(held[5:, ankles] - held[5, ankles]).max() < 1e-6
+    # The default soft IK eases the nearly straight legs of this sway: held to within a millimetre.
+    _, _, soft = retarget_motion(rest, rest, joints=joints, fps=FPS, foot_lock=True, blend_frames=4)
+    assert np.abs(soft[5:, ankles] - soft[5, ankles]).max() < 1e-3
     # Everything above the legs is untouched, and bone lengths are kept.
     np.testing.assert_allclose(held[:, [0, 3, 6, 9, 12, 15]], free[:, [0, 3, 6, 9, 12, 15]], atol=1e-9)
     lengths = np.linalg.norm(held[:, 4] - held[:, 1], axis=-1)
@@ -271,6 +274,31 @@ def test_two_bone_ik_reaches_and_keeps_lengths():
     # Straight leg, target above the foot: the knee bends forward (+z) about the hint.
     up, low = two_bone_ik(np.array([0, 1.0, 0]), np.array([0, 0.5, 0]), np.zeros(3), np.array([0, 0.2, 0]), np.array([1.0, 0, 0]))
     assert (up @ np.array([0, -0.5, 0]))[2] > 0.1
+
+
+def test_soft_ik_keeps_the_knee_from_snapping_past_the_reach():
+    from live.retarget.ik import limb_ik, soft_reach
+
+    # soft_reach: exact up to (1 - soft) x reach, then below the reach with a continuous slope.
+    assert soft_reach(0.9, 1.0, 0.05) == 0.9
+    d = np.linspace(0.9, 1.3, 4001)
+    eased = np.array([soft_reach(x, 1.0, 0.05) for x in d])
+    assert np.all(np.diff(eased) > 0) and eased.max() < 1.0
+    assert abs(soft_reach(0.95 + 1e-6, 1.0, 0.05) - (0.95 + 1e-6)) < 1e-11  # slope 1 at the joint
+    # A hip pulled up away from a planted ankle, past the leg's reach (two ~0.5 m bones):
+    # exact IK snaps the knee straight within the last millimetres, soft IK eases it there.
+    hip, knee, ankle = [0.0, 1.0, 0.0], [0.0, 0.5, 0.03], [0.0, 0.0, 0.0]
+    hint = [-1.0, 0.0, 0.0]
+    for soft, limit in ((0.0, None), (0.05, 0.002)):
+        knees = []
+        for y in np.linspace(0.95, 1.05, 201):  # target below the hip by y: 2 cm past the reach
+            upper, _ = limb_ik(hip, knee, ankle, [0.0, 1.0 - y, 0.0], hint, soft)
+            knees.append(np.array(hip) + np.array(upper) @ (np.array(knee) - hip))
+        steps = np.linalg.norm(np.diff(knees, axis=0), axis=-1)  # per 0.5 mm of target motion
+        if limit is None:
+            assert steps.max() > 0.005  # millimetres of knee for half a millimetre of target
+        else:
+            assert steps.max() < limit
 
 
 def test_hand_ik_reaches_scaled_source_hands():

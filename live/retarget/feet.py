@@ -27,7 +27,7 @@ class FootPlanter:
 
     def __init__(self, target_rest: np.ndarray, offsets: np.ndarray, *, foot_lock: bool = True,
                  floor: bool = True, blend_frames: int = 4, thresholds: ContactThresholds = ContactThresholds(),
-                 max_slide: float = 0.1, soft_ik: float = 0.0):
+                 max_slide: float = 0.1, soft_ik: float = 0.05):
         self.offsets = np.asarray(offsets, np.float64)
         self.foot_lock, self.floor = foot_lock, floor
         self.soft_ik = float(soft_ik)

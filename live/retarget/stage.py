@@ -42,7 +42,9 @@ class AnalyticRetargeter:
     source_rest, target_rest: (22, 3) T-poses. foot_lock: hold feet in contact still and keep
     feet above y = 0 (floor clearance alone with ``floor=True, foot_lock=False``). hand_ik: wrists
     reach the source's wrist positions relative to the pelvis, scaled by the leg-length ratio.
-    fps: frame rate assumed when ``step`` is not given ``dt``.
+    fps: frame rate assumed when ``step`` is not given ``dt``. soft_ik: the leg IK's soft reach
+    (live/retarget/ik.py ``soft_reach``; 0 = exact): a locked foot then never snaps the knee
+    straight and back, for a lag of at most 2 % of the leg's reach when it is fully stretched.
     """
 
     def __init__(
@@ -56,6 +58,7 @@ class AnalyticRetargeter:
         fps: float = 30.0,
         blend_frames: int = 4,
         thresholds: ContactThresholds = ContactThresholds(),
+        soft_ik: float = 0.05,
     ):
         self.source = RestInfo.of(source_rest)
         self.target = RestInfo.of(target_rest)
@@ -63,7 +66,7 @@ class AnalyticRetargeter:
         self.hand_ik = hand_ik
         self.dt = 1.0 / fps
         self.feet = FootPlanter(self.target.rest_joints, self.target.offsets, foot_lock=foot_lock, floor=floor,
-                                blend_frames=blend_frames, thresholds=thresholds)
+                                blend_frames=blend_frames, thresholds=thresholds, soft_ik=soft_ik)
         self.reset()
 
     @property
@@ -133,7 +136,7 @@ def retarget_motion(
     """Offline batch: a whole motion through a fresh AnalyticRetargeter (same result as online).
 
     Give joints T x 22 x 3, or rotations T x 22 x 4 with root T x 3. options: foot_lock, hand_ik,
-    floor, blend_frames, thresholds. Returns (root T x 3, rotations T x 22 x 4, joints T x 22 x 3).
+    floor, blend_frames, thresholds, soft_ik. Returns (root T x 3, rotations T x 22 x 4, joints T x 22 x 3).
     """
     rt = AnalyticRetargeter(source_rest, target_rest, fps=fps, **options)
     if joints is not None:
