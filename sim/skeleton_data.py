@@ -80,6 +80,32 @@ def split_bodies(presets: list[str], split: str) -> list[str]:
     return [n for n in names if (n in val) == (split != "train")]
 
 
+#: Anny phenotype ranges of on-demand training bodies: those the body library spans
+#: (models/train/export_bodies.py LIBRARY), so that they are people, from a 4-year-old up.
+ANNY_RANGES = {"gender": (0.0, 1.0), "age": (0.16, 1.0), "muscle": (0.2, 1.0), "weight": (0.05, 1.0),
+               "height": (0.15, 0.6), "proportions": (0.35, 0.8)}
+#: A drawn phenotype this close to a held-out preset's (in every key) is drawn again: the
+#: held-out bodies stay unseen.
+ANNY_HOLD_OUT_MARGIN = 0.15
+
+
+def anny_phenotypes(n: int, seed: int = 0) -> list[str]:
+    """``n`` random training phenotypes as ``anny:...`` body specs (deterministic per seed),
+    none within ANNY_HOLD_OUT_MARGIN of a held-out preset's phenotype in all keys."""
+    from live.body import ANNY_KEYS, list_presets
+    from models.train.export_bodies import LIBRARY
+
+    held_out = [LIBRARY[name] for name in split_bodies(list_presets(), "val") if name in LIBRARY]
+    rng = np.random.default_rng([seed, 7411])
+    specs: list[str] = []
+    while len(specs) < n:
+        ph = {k: round(float(rng.uniform(*ANNY_RANGES[k])), 2) for k in ANNY_KEYS}
+        if any(all(abs(ph[k] - h.get(k, 0.5)) < ANNY_HOLD_OUT_MARGIN for k in ANNY_KEYS) for h in held_out):
+            continue
+        specs.append("anny:" + ",".join(f"{k}={ph[k]:g}" for k in ANNY_KEYS))
+    return specs
+
+
 @dataclass(frozen=True)
 class Job:
     clip: str
@@ -91,8 +117,11 @@ class Job:
     split: str = "train"
 
 
-def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB) -> list[Job]:
-    """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped)."""
+def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
+              anny: list[str] | None = None, anny_share: float = 0.0) -> list[Job]:
+    """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
+    Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
+    probability ``anny_share``, else a training preset."""
     from live.body import list_presets
 
     if split not in SPLITS:
@@ -109,8 +138,10 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
             closeup = bool(rng.random() < 0.1)
         else:
             camera, closeup = "oak-d", split == "val_upper"
-        jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject,
-                        bodies[int(rng.integers(len(bodies)))], camera, closeup,
+        body = bodies[int(rng.integers(len(bodies)))]
+        if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
+            body = anny[int(rng.integers(len(anny)))]
+        jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
                         int(rng.integers(2**31)), split))
     return jobs
 
@@ -258,31 +289,50 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------- the dataset
-def _cache_path(split: str, n_samples: int, seed: int) -> Path:
-    key = json.dumps({"split": split, "n": n_samples, "seed": seed, "v": 3,
-                      "val_subjects": sorted(VAL_SUBJECTS)}, sort_keys=True)
+def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0) -> Path:
+    fields = {"split": split, "n": n_samples, "seed": seed, "v": 3, "val_subjects": sorted(VAL_SUBJECTS)}
+    if anny and anny_share > 0:
+        fields.update(anny=anny, anny_share=anny_share)
+    key = json.dumps(fields, sort_keys=True)
     return CACHE_DIR / f"{split}_{n_samples}_{seed}_{hashlib.sha1(key.encode()).hexdigest()[:8]}.npz"
 
 
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
-             progress: bool = False) -> dict[str, np.ndarray]:
+             progress: bool = False, anny: int = 0, anny_share: float = 0.0) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
     visible (S,22) bool, clip / body / camera (S,) str, subject (S,) int32 (-1 = none),
     closeup (S,) bool, frame (S,) int32, distance (S,) float32 (camera to pelvis, horizontal),
     count (S,) int32 (person points found); S <= n_samples (frames where the finder failed are
-    dropped; ``failed`` counts them)."""
-    path = _cache_path(split, n_samples, seed)
+    dropped; ``failed`` counts them). anny > 0: training jobs take one of ``anny`` on-demand Anny
+    phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``."""
+    anny = anny if split == "train" and anny_share > 0 else 0
+    path = _cache_path(split, n_samples, seed, anny, anny_share)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    jobs = plan_jobs(split, n_samples, seed)
+    phenotypes = anny_phenotypes(anny, seed) if anny else None
+    jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share)
+    if phenotypes:
+        _build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),
                    n_samples)
     if cache:
         save_cache(path, data)
     return data
+
+
+def _build_bodies(specs: list[str], progress: bool) -> None:
+    """Build the on-demand bodies once here, before the pool forks: the workers inherit them
+    (building Anny's model costs a minute per process, a phenotype then ~0.2 s)."""
+    it = specs
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(specs, desc="anny bodies", unit="body")
+    for spec in it:
+        body_by_name(spec)
 
 
 def run_jobs(fn, jobs: list, workers: int, progress: str | None = None, chunksize: int = 1) -> list:
@@ -334,8 +384,11 @@ def mirror(points: np.ndarray, joints: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def describe(data: dict[str, np.ndarray]) -> dict:
     """Counts for the model card."""
+    bodies = np.unique(data["body"]).tolist()
     return {"samples": int(len(data["points"])), "clips": int(len(np.unique(data["clip"]))),
-            "bodies": sorted(np.unique(data["body"]).tolist()),
+            "bodies": sorted(b for b in bodies if not b.startswith("anny:")),
+            "anny_phenotypes": sum(b.startswith("anny:") for b in bodies),
+            "anny_samples": int(np.char.startswith(data["body"].astype(str), "anny:").sum()),
             "subjects": sorted(int(s) for s in np.unique(data["subject"])),
             "cameras": {c: int((data["camera"] == c).sum()) for c in np.unique(data["camera"])},
             "closeups": int(data["closeup"].sum()), "dropped_frames": int(data.get("failed", 0)),
@@ -343,6 +396,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
-           "plan_jobs", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
+           "plan_jobs", "anny_phenotypes", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
            "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

@@ -183,6 +183,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                    help="fine-tune: start from an export of the same network, e.g. the shipped one (docs/skeleton.md)")
     p.add_argument("--net", type=json.loads, default=None, metavar="JSON",
                    help='override the network options of "ours", e.g. \'{"refine_k": 0}\' (ablations)')
+    p.add_argument("--anny", type=int, default=None, metavar="N",
+                   help="on-demand Anny phenotypes among the training bodies (default 64; 0 with --quick)")
+    p.add_argument("--anny-share", type=float, default=0.3,
+                   help="share of the training jobs on an Anny phenotype instead of a preset")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--threads", type=int, default=2)
@@ -205,8 +209,9 @@ def main(argv: list[str] | None = None) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()
+    anny = args.anny if args.anny is not None else (0 if args.quick else 64)
     data = {split: generate(split, n, seed=args.seed + k, workers=args.workers, progress=progress,
-                            cache=not args.no_cache)
+                            cache=not args.no_cache, anny=anny, anny_share=args.anny_share)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12))))}
     data_seconds = round(time.monotonic() - t0, 1)
@@ -252,6 +257,10 @@ def main(argv: list[str] | None = None) -> dict:
             "data": {split: describe(d) for split, d in data.items()},
             "split": {"val_subjects": sorted(VAL_SUBJECTS), "val_bodies": split_bodies(list_presets(), "val"),
                       "train_bodies": split_bodies(list_presets(), "train"),
+                      "train_anny": {"phenotypes": anny, "share": args.anny_share if anny else 0.0,
+                                     "note": "random Anny phenotypes in the library's ranges, none within "
+                                             "0.15 of a held-out preset in every key "
+                                             "(sim.skeleton_data.anny_phenotypes)"},
                       "note": "val: OAK-D, camera 1.5-4 m from the performer, unseen subjects and bodies; "
                               "val_upper: close-ups (0.8-1.4 m, legs out of frame), same held-out sets"},
             "metrics": results, "seed": args.seed, "threads": args.threads,

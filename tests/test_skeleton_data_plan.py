@@ -1,0 +1,34 @@
+"""The training plan of the skeleton regressor: held-out splits, on-demand Anny phenotypes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from live.body import ANNY_KEYS, list_presets, parse_anny_spec
+from models.train.export_bodies import LIBRARY
+from sim.skeleton_data import (ANNY_HOLD_OUT_MARGIN, ANNY_RANGES, VAL_SUBJECTS, anny_phenotypes, plan_jobs,
+                               split_bodies)
+
+
+def test_anny_phenotypes_are_deterministic_people_away_from_the_held_out_bodies():
+    specs = anny_phenotypes(200, seed=3)
+    assert specs == anny_phenotypes(200, seed=3) and specs != anny_phenotypes(200, seed=4)
+    assert len(set(specs)) == len(specs)
+    held_out = [LIBRARY[n] for n in split_bodies(list_presets(), "val")]
+    for spec in specs:
+        ph = parse_anny_spec(spec)  # a valid body spec
+        assert all(ANNY_RANGES[k][0] <= ph[k] <= ANNY_RANGES[k][1] for k in ANNY_KEYS)
+        for h in held_out:
+            assert max(abs(ph[k] - h[k]) for k in ANNY_KEYS) >= ANNY_HOLD_OUT_MARGIN
+
+
+def test_plan_mixes_anny_bodies_into_training_only():
+    pool = anny_phenotypes(16)
+    plain = plan_jobs("train", 4000, seed=0)
+    mixed = plan_jobs("train", 4000, seed=0, anny=pool, anny_share=0.3)
+    share = np.mean([j.body.startswith("anny:") for j in mixed])
+    assert 0.25 < share < 0.35
+    assert not any(j.body.startswith("anny:") for j in plain)
+    assert {j.body for j in mixed if not j.body.startswith("anny:")} <= set(split_bodies(list_presets(), "train"))
+    val = plan_jobs("val", 400, seed=1, anny=pool, anny_share=0.3)
+    assert all(j.body in split_bodies(list_presets(), "val") and j.subject in VAL_SUBJECTS for j in val)
