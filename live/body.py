@@ -83,6 +83,12 @@ def parse_anny_spec(spec: str) -> dict[str, float]:
     return values
 
 
+def format_anny_spec(phenotype: dict[str, float]) -> str:
+    """{key: value} -> the canonical ``anny:gender=..,age=..,...`` spec (ANNY_KEYS order; the
+    inverse of ``parse_anny_spec``), which also names the body."""
+    return "anny:" + ",".join(f"{k}={phenotype[k]:g}" for k in ANNY_KEYS)
+
+
 def save_body(path: str | Path, body: Body) -> None:
     """Write a body file (compressed .npz). Byte-for-byte deterministic: fixed zip timestamps,
     so re-exporting the library reproduces the committed files exactly."""
@@ -185,8 +191,7 @@ def _build_anny(spec: str) -> Body:
     if any(importlib.util.find_spec(m) is None for m in ("torch", "anny")):
         raise UserInputError("building an anny: body needs the train extra: pip install 'livecap[train]'")
     from models.train.export_bodies import build_body
-    name = "anny:" + ",".join(f"{k}={phenotype[k]:g}" for k in ANNY_KEYS)
-    return build_body(phenotype, name)
+    return build_body(phenotype, format_anny_spec(phenotype))
 
 
 @functools.lru_cache(maxsize=32)

@@ -92,7 +92,7 @@ ANNY_HOLD_OUT_MARGIN = 0.15
 def anny_phenotypes(n: int, seed: int = 0) -> list[str]:
     """``n`` random training phenotypes as ``anny:...`` body specs (deterministic per seed),
     none within ANNY_HOLD_OUT_MARGIN of a held-out preset's phenotype in all keys."""
-    from live.body import ANNY_KEYS, list_presets
+    from live.body import ANNY_KEYS, format_anny_spec, list_presets
     from models.train.export_bodies import LIBRARY
 
     held_out = [LIBRARY[name] for name in split_bodies(list_presets(), "val") if name in LIBRARY]
@@ -100,9 +100,9 @@ def anny_phenotypes(n: int, seed: int = 0) -> list[str]:
     specs: list[str] = []
     while len(specs) < n:
         ph = {k: round(float(rng.uniform(*ANNY_RANGES[k])), 2) for k in ANNY_KEYS}
-        if any(all(abs(ph[k] - h.get(k, 0.5)) < ANNY_HOLD_OUT_MARGIN for k in ANNY_KEYS) for h in held_out):
+        if any(all(abs(ph[k] - h[k]) < ANNY_HOLD_OUT_MARGIN for k in ANNY_KEYS) for h in held_out):
             continue
-        specs.append("anny:" + ",".join(f"{k}={ph[k]:g}" for k in ANNY_KEYS))
+        specs.append(format_anny_spec(ph))
     return specs
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.body import ANNY_KEYS, list_presets, parse_anny_spec
+from live.body import ANNY_KEYS, format_anny_spec, list_presets, parse_anny_spec
 from models.train.export_bodies import LIBRARY
 from sim.skeleton_data import (ANNY_HOLD_OUT_MARGIN, ANNY_RANGES, VAL_SUBJECTS, anny_phenotypes, plan_jobs,
                                split_bodies)
@@ -16,7 +16,8 @@ def test_anny_phenotypes_are_deterministic_people_away_from_the_held_out_bodies(
     assert len(set(specs)) == len(specs)
     held_out = [LIBRARY[n] for n in split_bodies(list_presets(), "val")]
     for spec in specs:
-        ph = parse_anny_spec(spec)  # a valid body spec
+        ph = parse_anny_spec(spec)  # a valid body spec, in its canonical form
+        assert format_anny_spec(ph) == spec
         assert all(ANNY_RANGES[k][0] <= ph[k] <= ANNY_RANGES[k][1] for k in ANNY_KEYS)
         for h in held_out:
             assert max(abs(ph[k] - h[k]) for k in ANNY_KEYS) >= ANNY_HOLD_OUT_MARGIN
