@@ -18,6 +18,8 @@ from live.skeleton import CHILDREN, PARENTS
 
 _LEGS = np.array([limb[:3] for limb in LIMBS[:2]], dtype=np.int64)
 _LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)
+#: The leg IK's default soft reach (docs/retargeting.md: chosen on training clips).
+SOFT_IK = 0.05
 
 
 class FootPlanter:
@@ -27,7 +29,7 @@ class FootPlanter:
 
     def __init__(self, target_rest: np.ndarray, offsets: np.ndarray, *, foot_lock: bool = True,
                  floor: bool = True, blend_frames: int = 4, thresholds: ContactThresholds = ContactThresholds(),
-                 max_slide: float = 0.1, soft_ik: float = 0.05):
+                 max_slide: float = 0.1, soft_ik: float = SOFT_IK):
         self.offsets = np.asarray(offsets, np.float64)
         self.foot_lock, self.floor = foot_lock, floor
         self.soft_ik = float(soft_ik)

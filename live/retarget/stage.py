@@ -14,7 +14,7 @@ from live.errors import UserInputError
 from live.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, joints_from_globals, leg_ratio, solve_globals
 from live.retarget.contacts import ContactThresholds
-from live.retarget.feet import FootPlanter
+from live.retarget.feet import SOFT_IK, FootPlanter
 from live.retarget.ik import apply_limb_ik
 from live.rotations import matrix_to_quat, quat_to_matrix
 from live.skeleton import CHILDREN, NUM_JOINTS, PARENTS
@@ -58,7 +58,7 @@ class AnalyticRetargeter:
         fps: float = 30.0,
         blend_frames: int = 4,
         thresholds: ContactThresholds = ContactThresholds(),
-        soft_ik: float = 0.05,
+        soft_ik: float = SOFT_IK,
     ):
         self.source = RestInfo.of(source_rest)
         self.target = RestInfo.of(target_rest)
