@@ -315,7 +315,7 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     phenotypes = anny_phenotypes(anny, seed) if anny else None
     jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share)
     if phenotypes:
-        _build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
+        build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),
                    n_samples)
     if cache:
@@ -323,7 +323,7 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     return data
 
 
-def _build_bodies(specs: list[str], progress: bool) -> None:
+def build_bodies(specs: list[str], progress: bool) -> None:
     """Build the on-demand bodies once here, before the pool forks: the workers inherit them
     (building Anny's model costs a minute per process, a phenotype then ~0.2 s)."""
     it = specs
@@ -396,6 +396,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
-           "plan_jobs", "anny_phenotypes", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
+           "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
            "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

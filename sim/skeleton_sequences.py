@@ -21,8 +21,9 @@ import numpy as np
 
 from live.errors import UserInputError
 from live.skeleton import NUM_JOINTS
-from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, body_by_name, clip_motion,
-                               grounded_joints, plan_jobs, random_view, run_jobs, save_cache, visible_joints)
+from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, anny_phenotypes, body_by_name,
+                               build_bodies, clip_motion, grounded_joints, plan_jobs, random_view, run_jobs,
+                               save_cache, visible_joints)
 
 SEQUENCE_FPS = 30.0
 SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleared room
@@ -73,9 +74,12 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     return out
 
 
-def _cache_path(split: str, n_sequences: int, seed: int):
-    key = json.dumps({"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
-                      "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}, sort_keys=True)
+def _cache_path(split: str, n_sequences: int, seed: int, anny: int = 0, anny_share: float = 0.0):
+    fields = {"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
+              "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}
+    if anny and anny_share > 0:  # without them, the key (and the caches) of the presets-only data
+        fields.update(anny=anny, anny_share=anny_share)
+    key = json.dumps(fields, sort_keys=True)
     return CACHE_DIR / f"seq_{split}_{n_sequences}_{seed}_{hashlib.sha1(key.encode()).hexdigest()[:8]}.npz"
 
 
@@ -84,29 +88,38 @@ def _load(path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def _largest_cached_prefix(split: str, n_sequences: int, seed: int) -> dict[str, np.ndarray] | None:
-    """The cached sequences of the same split and seed with the most sequences below n, if any."""
-    best = max((n for n in range(1, n_sequences) if _cache_path(split, n, seed).is_file()), default=None)
-    return None if best is None else _load(_cache_path(split, best, seed))
+def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, anny_share: float
+                           ) -> dict[str, np.ndarray] | None:
+    """The cached sequences of the same split, seed and bodies with the most sequences below n, if any."""
+    best = max((n for n in range(1, n_sequences) if _cache_path(split, n, seed, anny, anny_share).is_file()),
+               default=None)
+    return None if best is None else _load(_cache_path(split, best, seed, anny, anny_share))
 
 
 def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
-                       progress: bool = False) -> dict[str, np.ndarray]:
-    """The sequences of a split (cached under .cache/skeleton_data).
+                       progress: bool = False, anny: int = 0, anny_share: float = 0.0) -> dict[str, np.ndarray]:
+    """The sequences of a split (cached under .cache/skeleton_data). anny > 0: training
+    sequences take one of ``anny`` on-demand Anny phenotypes (the per-frame data's,
+    ``sim.skeleton_data.anny_phenotypes``; the train extra) with probability ``anny_share``.
 
     Returns points (S, F, 512, 3) float32 person frame, to_world (S, F, 4, 4), found (S, F) bool,
     joints (S, F, 22, 3) float32 world, visible (S, F, 22) bool, t_ns (S, F) int64, and per
     sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool."""
     if split not in ("train", "val"):
         raise UserInputError(f"sequence data has splits train and val, not {split!r}")
-    path = _cache_path(split, n_sequences, seed)
+    anny = anny if split == "train" and anny_share > 0 else 0
+    path = _cache_path(split, n_sequences, seed, anny, anny_share)
     if cache and path.is_file():
         return _load(path)
     # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n. Its plan
     # for n jobs starts with its plan for fewer, so a cached smaller set is this one's prefix.
-    jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1)[:n_sequences]
-    prefix = _largest_cached_prefix(split, n_sequences, seed) if cache else None
+    phenotypes = anny_phenotypes(anny, seed) if anny else None  # the per-frame data's, same seed
+    jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1, anny=phenotypes,
+                     anny_share=anny_share)[:n_sequences]
+    prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share) if cache else None
     done = len(prefix["found"]) if prefix else 0
+    if phenotypes:
+        build_bodies(sorted({j.body for j in jobs[done:] if j.body.startswith("anny:")}), progress)
     results = run_jobs(run_sequence_job, jobs[done:], workers, f"sequences {split}" if progress else None)
     data = {k: np.stack([r[k] for r in results]) for k in results[0]}
     if prefix:

@@ -21,3 +21,17 @@ def test_more_sequences_extend_the_cached_ones(tmp_path, monkeypatch, shared_bvh
         np.testing.assert_array_equal(more[key], fresh[key], err_msg=key)
         np.testing.assert_array_equal(more[key][:1], small[key], err_msg=key)
     assert more["found"].shape == (2, seq.SEQUENCE_FRAMES)
+
+
+def test_anny_sequences_cache_apart_and_never_reach_validation(tmp_path, monkeypatch, shared_bvh):
+    import sim.skeleton_sequences as seq
+
+    monkeypatch.setattr(seq, "CACHE_DIR", tmp_path)
+    assert seq._cache_path("train", 10, 2, anny=64, anny_share=0.7) != seq._cache_path("train", 10, 2)
+    assert seq._cache_path("train", 10, 2, anny=64, anny_share=0.0) == seq._cache_path("train", 10, 2)
+    # The validation split ignores Anny bodies: its data (and cache) are those without them.
+    built = []
+    monkeypatch.setattr(seq, "build_bodies", lambda specs, progress: built.append(specs))
+    val = seq.generate_sequences("val", 1, seed=5, anny=64, anny_share=1.0)
+    assert built == [] and not any(str(b).startswith("anny:") for b in val["body"])
+    assert [p.name for p in tmp_path.glob("seq_val_1_5_*.npz")] == [seq._cache_path("val", 1, 5).name]

@@ -341,6 +341,13 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--net", type=json.loads, default={}, metavar="JSON", help='e.g. \'{"width": 256}\'')
     p.add_argument("--n-train", type=int, default=None, help="training sequences (default 4000)")
     p.add_argument("--n-val", type=int, default=None, help="validation sequences (default 150)")
+    p.add_argument("--anny-train", type=int, default=None, metavar="M",
+                   help="M more training sequences (seed + 2) where Anny bodies join the presets "
+                        "(default 3000, 0 with --quick; needs the train extra)")
+    p.add_argument("--anny", type=int, default=64, metavar="N",
+                   help="on-demand Anny phenotypes of those sequences (the per-frame data's; default 64)")
+    p.add_argument("--anny-share", type=float, default=0.7,
+                   help="share of those sequences on an Anny body (default 0.7: 30%% of 7,000)")
     p.add_argument("--regressor", type=Path, default=DEFAULT_MODEL)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
@@ -352,12 +359,17 @@ def main(argv: list[str] | None = None) -> dict:
     n_train = args.n_train or (6 if args.quick else 4000)
     n_val = args.n_val or (3 if args.quick else 150)
     epochs = args.epochs or (1 if args.quick else 30)
+    n_anny = args.anny_train if args.anny_train is not None else (0 if args.quick else 3000)
     out_dir = args.out or (ROOT / ".cache" / "skeleton_temporal_quick" if args.quick else WEIGHTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()
     data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress),
             "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress)}
+    if n_anny:  # presets-only sequences, then Anny-mixed ones: the first set's cache stays valid
+        more = generate_sequences("train", n_anny, seed=args.seed + 2, workers=args.workers, progress=progress,
+                                  anny=args.anny, anny_share=args.anny_share)
+        data["train"] = {k: np.concatenate([data["train"][k], more[k]]) for k in data["train"]}
     examples, per_frame = {}, {}
     for split, d in data.items():
         per_frame[split] = regress_sequences(d, args.regressor, args.threads)
@@ -391,7 +403,13 @@ def main(argv: list[str] | None = None) -> dict:
         "training": log, "data_seconds": data_seconds,
         "data": {split: {"sequences": int(len(d["found"])), "frames_per_sequence": SEQUENCE_FRAMES,
                          "found_frames": int(d["found"].sum()), "clips": int(len(np.unique(d["clip"]))),
-                         "bodies": sorted(np.unique(d["body"]).tolist())} for split, d in data.items()},
+                         "bodies": sorted(b for b in np.unique(d["body"]).tolist() if not b.startswith("anny:")),
+                         "anny_sequences": int(np.char.startswith(d["body"].astype(str), "anny:").sum())}
+                 for split, d in data.items()},
+        "train_sets": [{"sequences": n_train, "seed": args.seed, "bodies": "training presets"}]
+        + ([{"sequences": n_anny, "seed": args.seed + 2, "anny_phenotypes": args.anny, "anny_share": args.anny_share,
+             "bodies": "training presets and on-demand Anny bodies of the per-frame data "
+                       "(sim.skeleton_data.anny_phenotypes, none near a held-out preset)"}] if n_anny else []),
         "split": {"val_subjects": sorted(VAL_SUBJECTS),
                   "note": "val: OAK-D 1.5-4 m, unseen CMU subjects and unseen bodies (sim.skeleton_sequences); "
                           "on_performer: frames where the person finder found the performer (the setting of "
