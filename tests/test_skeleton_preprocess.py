@@ -202,3 +202,26 @@ def test_tracking_finds_a_performer_who_left_the_window():
     cloud = finder.find(frames[20])  # the window around the old place holds nobody now
     assert cloud is not None and abs(cloud.to_world[0, 3] - (-0.4 + 0.6 * 20 / 30 + 1.2)) < 0.15
     assert finder.counters.full_searches == full + 1
+
+
+def test_fine_sample_draws_distinct_person_pixels_even_from_a_mostly_empty_box(monkeypatch):
+    f = frame(FRONT)
+    finder = PersonFinder()
+    cfg = finder.config
+    c2w = np.asarray(f.camera_to_world, np.float64)
+    found = finder._search(f, cfg.coarse_stride, c2w, None, None, 10)
+    h, w = (-(-n // cfg.coarse_stride) for n in f.depth_mm.shape)
+    drawn = []
+    real = PersonFinder._person_points
+    monkeypatch.setattr(PersonFinder, "_person_points",
+                        lambda self, idx, *a: drawn.append(len(idx)) or real(self, idx, *a))
+    for box in (found.box, (0, h - 1, 0, w - 1)):  # the person's box; the whole image (person ~5 %)
+        pts = finder._fine_sample(f, c2w, box, found.labels, found.lab, found.origin, np.random.default_rng(3))
+        assert pts.shape == (cfg.num_points, 3)
+        assert len(np.unique(pts, axis=0)) == cfg.num_points  # without replacement
+        # Every point lies in the person's cells, above the floor.
+        i = np.floor((pts[:, 0] - found.origin[0]) / cfg.cell_m).astype(int)
+        j = np.floor((pts[:, 2] - found.origin[1]) / cfg.cell_m).astype(int)
+        assert np.all(found.labels[j, i] == found.lab) and np.all(pts[:, 1] > cfg.floor_margin_m)
+    # One quick draw of 4n candidates for the person's box; for the whole image it starts over on all of them.
+    assert len(drawn) == 3 and drawn[0] == drawn[1] == 4 * cfg.num_points and drawn[2] > 20 * cfg.num_points
