@@ -339,7 +339,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--acc-weight", type=float, default=0.3)
     p.add_argument("--net", type=json.loads, default={}, metavar="JSON", help='e.g. \'{"width": 256}\'')
-    p.add_argument("--n-train", type=int, default=None, help="training sequences (default 4000)")
+    p.add_argument("--n-train", type=int, default=None, help="presets-only training sequences (default 4000)")
     p.add_argument("--n-val", type=int, default=None, help="validation sequences (default 150)")
     p.add_argument("--anny-train", type=int, default=None, metavar="M",
                    help="M more training sequences (seed + 2) where Anny bodies join the presets "
@@ -358,7 +358,7 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(args.threads)
     n_train = args.n_train or (6 if args.quick else 4000)
     n_val = args.n_val or (3 if args.quick else 150)
-    epochs = args.epochs or (1 if args.quick else 30)
+    epochs = args.epochs or (1 if args.quick else 24)
     n_anny = args.anny_train if args.anny_train is not None else (0 if args.quick else 3000)
     out_dir = args.out or (ROOT / ".cache" / "skeleton_temporal_quick" if args.quick else WEIGHTS)
     out_dir.mkdir(parents=True, exist_ok=True)
