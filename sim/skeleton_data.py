@@ -396,6 +396,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
-           "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view", "clear_view",
-           "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
+           "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view",
+           "clear_view", "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

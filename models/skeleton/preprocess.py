@@ -494,9 +494,9 @@ class PersonFinder:
         n = cfg.num_points
         rays = self._world_rays(frame.intrinsics, frame.depth_mm[::s, ::s].shape, c2w, s)
         crop = (r0 // s, c0 // s, z.shape[1], -(-w // s))
-        # A person fills a third of their box or more: 4n candidates drawn in random order
-        # (~5x cheaper than shuffling all of them) nearly always hold n of their pixels; when
-        # they do not, start over on a shuffle of all candidates (still a uniform sample).
+        # 4n candidates drawn in random order (~5x cheaper than shuffling all of them) hold n of
+        # the person's pixels when they fill a quarter of their box (0.29-0.48 of it on a CMU
+        # clip); when they do not, start over on a shuffle of all candidates (still uniform).
         order = rng.choice(len(cand), size=min(4 * n, len(cand)), replace=False)
         pts = self._person_points(cand[order], rays, z, c2w, origin, labels, lab, crop)
         if len(pts) < n and len(order) < len(cand):
