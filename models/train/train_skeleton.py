@@ -216,6 +216,7 @@ def main(argv: list[str] | None = None) -> dict:
                                             ("val_upper", max(n_val // 3, 12))))}
     data_seconds = round(time.monotonic() - t0, 1)
     from live.body import list_presets
+    from models.train.mirror_average import apply_mirror_average
 
     kinds = ("ours", "baseline") if args.model == "both" else (args.model,)
     cards: dict[str, dict] = {}
@@ -268,6 +269,10 @@ def main(argv: list[str] | None = None) -> dict:
                        + shlex.join(argv if argv is not None else sys.argv[1:]),
             "software": {"torch": torch.__version__, "python": platform.python_version()},
         }
+        if kind == "ours":  # deployed with mirror test-time averaging (models.train.mirror_average)
+            results, cards[kind]["test_time_mirror"] = apply_mirror_average(
+                onnx_path, {s: data[s] for s in ("val", "val_upper")}, recipe.num_points, results)
+            cards[kind]["metrics"] = results
         (out_dir / f"{name}.json").write_text(json.dumps(cards[kind], indent=1) + "\n")
         v = results["val_1.5-4m"]
         print(f"{kind}: val MPJPE {v['mpjpe_mm']} mm, PA-MPJPE {v['pa_mpjpe_mm']} mm, "
