@@ -75,17 +75,13 @@ def is_wrapped(model) -> bool:
 def measure(path: Path, data: dict[str, dict], num_points: int) -> dict:
     """The skeleton card's three validation results of the ONNX file ``path`` (as train_skeleton)."""
     from models.skeleton.runtime import SkeletonRegressor
-    from models.train.train_skeleton import metrics
+    from models.train.train_skeleton import split_results
 
     reg = SkeletonRegressor(path)
     out = {}
     for split, d in data.items():
         pts = d["points"][:, :num_points]
-        pred = np.concatenate([reg(pts[a:a + 256]) for a in range(0, len(pts), 256)]).astype(np.float64)
-        out[split] = metrics(pred, d["joints"].astype(np.float64), d["visible"])
-        if split == "val":
-            m = (d["distance"] >= 1.5) & (d["distance"] <= 4.0)
-            out["val_1.5-4m"] = metrics(pred[m], d["joints"][m].astype(np.float64), d["visible"][m])
+        out.update(split_results(split, np.concatenate([reg(pts[a:a + 256]) for a in range(0, len(pts), 256)]), d))
     return out
 
 
