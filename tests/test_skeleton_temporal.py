@@ -57,6 +57,32 @@ def test_stage_uses_the_temporal_model_only_behind_its_regressor(tmp_path):
         SkeletonStage(BASELINE_MODEL, temporal=DEFAULT_TEMPORAL_MODEL)
 
 
+@pytest.mark.skipif(not DEFAULT_TEMPORAL_MODEL.is_file(), reason="no shipped temporal model")
+def test_stage_takes_the_temporal_model_beside_its_regressor(tmp_path):
+    """A regressor kept in its own folder (e.g. a mirror-averaged one) runs with the temporal
+    models trained behind it there; the shipped ones are the fallback."""
+    import shutil
+
+    from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonStage
+    from models.skeleton.temporal import temporal_model_path
+
+    own = tmp_path / "skeleton.onnx"
+    shutil.copy(DEFAULT_MODEL, own)
+    assert temporal_model_path(0, own) == DEFAULT_TEMPORAL_MODEL
+    assert SkeletonStage(own).temporal.path == DEFAULT_TEMPORAL_MODEL
+    for f in (DEFAULT_TEMPORAL_MODEL, DEFAULT_TEMPORAL_MODEL.with_suffix(".json")):
+        shutil.copy(f, tmp_path / f.name)
+    assert temporal_model_path(0, own) == tmp_path / DEFAULT_TEMPORAL_MODEL.name
+    assert SkeletonStage(own).temporal.path == tmp_path / DEFAULT_TEMPORAL_MODEL.name
+    # Beside another regressor, the same file does not match: refinement off, not wrong corrections.
+    other = tmp_path / "other" / "skeleton.onnx"
+    other.parent.mkdir()
+    shutil.copy(BASELINE_MODEL, other)
+    for f in (DEFAULT_TEMPORAL_MODEL, DEFAULT_TEMPORAL_MODEL.with_suffix(".json")):
+        shutil.copy(f, other.parent / f.name)
+    assert SkeletonStage(other).temporal is None
+
+
 def test_missing_temporal_model_is_a_model_error(tmp_path):
     from models.skeleton.runtime import SkeletonStage
 

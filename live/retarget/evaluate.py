@@ -61,8 +61,10 @@ def make_retargeter(kind: str, source_rest: np.ndarray, target_rest: np.ndarray,
 
 
 def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0,
-                    skeleton_model: str | Path | None = None, lag: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                    skeleton_model: str | Path | None = None, lag: int = 0,
+                    placement=None) -> tuple[np.ndarray, np.ndarray]:
     """Run the virtual camera and the skeleton stage over the motion on the source body.
+    ``placement``: a sim.synth.CameraPlacement (default: 3 m in front, 1.2 m high).
 
     Returns (joints T x 22 x 3 world, found (T,) bool); frames where nobody was found repeat the
     last skeleton (the first found one before any), as a live avatar would hold its pose. With a
@@ -71,7 +73,8 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
     from models.skeleton.runtime import SkeletonStage
     from sim.synth import SyntheticScene
 
-    scene = SyntheticScene.build(motion, source_body, camera=camera, fps=motion.fps, seed=seed)
+    scene = SyntheticScene.build(motion, source_body, camera=camera, fps=motion.fps, seed=seed,
+                                  placement=placement)
     stage = SkeletonStage(skeleton_model, lag=lag)
     out = np.full((scene.num_frames, 22, 3), np.nan)
     frame_at: dict[int, int] = {}

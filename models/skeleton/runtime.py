@@ -193,7 +193,7 @@ def _open_temporal(temporal: bool | str | Path, regressor_path: Path, threads: i
         if lag:
             raise UserInputError("a skeleton lag needs the temporal model (it is the one that lags)")
         return None
-    path = temporal_model_path(lag) if temporal is True else Path(temporal)
+    path = temporal_model_path(lag, regressor_path) if temporal is True else Path(temporal)
     if temporal is True and not path.is_file():
         if lag:
             shipped = sorted(p.stem for p in path.parent.glob("skeleton_temporal_lag*.onnx"))

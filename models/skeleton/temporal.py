@@ -34,10 +34,14 @@ WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
 
 
-def temporal_model_path(lag: int = 0) -> Path:
-    """The shipped temporal model of a lag: skeleton_temporal.onnx (online), or
-    skeleton_temporal_lag<L>.onnx."""
-    return DEFAULT_TEMPORAL_MODEL if lag == 0 else WEIGHTS_DIR / f"skeleton_temporal_lag{int(lag)}.onnx"
+def temporal_model_path(lag: int = 0, regressor_path: Path | None = None) -> Path:
+    """The temporal model of a lag: skeleton_temporal.onnx (online), or skeleton_temporal_lag<L>.onnx;
+    the one beside ``regressor_path`` when there is one there (a regressor trained or wrapped
+    elsewhere comes with its own temporal models), else the shipped one."""
+    name = "skeleton_temporal.onnx" if lag == 0 else f"skeleton_temporal_lag{int(lag)}.onnx"
+    if regressor_path is not None and (Path(regressor_path).parent / name).is_file():
+        return Path(regressor_path).parent / name
+    return WEIGHTS_DIR / name
 
 
 @dataclass(frozen=True)

@@ -124,10 +124,11 @@ def quat_to_matrix_t(q: torch.Tensor) -> torch.Tensor:
 
 class Sampler:
     """Random training windows: (rotations B x T x 22 x 3 x 3, root B x T x 3 on the clip's own
-    body, clip T-pose B x 22 x 3, body A B x 22 x 3, body B B x 22 x 3)."""
+    body, clip T-pose B x 22 x 3, body A B x 22 x 3, body B B x 22 x 3); ``chain_batch`` adds
+    the source joints B x T x 22 x 3 that the depth chain gave (models.train.chain_sources)."""
 
-    def __init__(self, data: dict, clip_ids: np.ndarray, rests: np.ndarray, seed: int):
-        self.data, self.rests = data, rests
+    def __init__(self, data: dict, clip_ids: np.ndarray, rests: np.ndarray, seed: int, chain: dict | None = None):
+        self.data, self.rests, self.chain = data, rests, chain
         self.rng = np.random.default_rng(seed)
         lengths = np.diff(data["offsets"])[clip_ids]
         self.clip_ids = clip_ids
@@ -147,20 +148,56 @@ class Sampler:
             lo, hi = d["offsets"][c], d["offsets"][c + 1]
             n = min(length, hi - lo)
             s = lo + rng.integers(0, hi - lo - n + 1)
-            rot[b, :n], root[b, :n] = d["rotations"][s:s + n], d["root"][s:s + n]
-            rot[b, n:], root[b, n:] = rot[b, n - 1], root[b, n - 1]  # a short clip holds its last pose
-            # A random yaw about the world origin: the same motion facing elsewhere.
-            a = rng.uniform(-np.pi, np.pi)
-            yaw = np.array([np.cos(a / 2), 0.0, np.sin(a / 2), 0.0], np.float32)
-            rot[b, :, 0] = _qmul(yaw, rot[b, :, 0])
-            c_, s_ = np.cos(a), np.sin(a)
-            x, z = root[b, :, 0].copy(), root[b, :, 2].copy()
-            root[b, :, 0], root[b, :, 2] = c_ * x + s_ * z, -s_ * x + c_ * z
+            _window(rot[b], d["rotations"][s:s + n])
+            _window(root[b], d["root"][s:s + n])
+            _turn(rng.uniform(-np.pi, np.pi), rot[b], root[b])
             rest[b] = d["rest"][c]
         body_a = np.stack([self.body() for _ in range(size)])
         body_b = np.stack([self.body() for _ in range(size)])
         return (quat_to_matrix_t(torch.from_numpy(rot)), torch.from_numpy(root), torch.from_numpy(rest),
                 torch.from_numpy(body_a), torch.from_numpy(body_b))
+
+    def chain_batch(self, size: int, length: int):
+        """Like ``batch``, with the depth chain's own source joints appended: body A is the T-pose
+        the pipeline estimated for the performer, the truth the motion on the target body B."""
+        rng, d, ch = self.rng, self.data, self.chain
+        rot = np.empty((size, length, 22, 4), np.float32)
+        root = np.empty((size, length, 3), np.float32)
+        src = np.empty((size, length, 22, 3), np.float32)
+        rest = np.empty((size, 22, 3), np.float32)
+        body_a = np.empty((size, 22, 3), np.float32)
+        p = ch["frames"] / ch["frames"].sum()
+        for b in range(size):
+            r = rng.choice(len(p), p=p)
+            n = min(length, int(ch["frames"][r]))
+            k = int(rng.integers(0, ch["frames"][r] - n + 1))
+            c = ch["clip"][r]
+            s = d["offsets"][c] + ch["start"][r] + k
+            _window(rot[b], d["rotations"][s:s + n])
+            _window(root[b], d["root"][s:s + n])
+            _window(src[b], ch["joints"][ch["offsets"][r] + k:ch["offsets"][r] + k + n])
+            _turn(rng.uniform(-np.pi, np.pi), rot[b], root[b], src[b])
+            rest[b], body_a[b] = d["rest"][c], ch["rest"][r]
+        body_b = np.stack([self.body() for _ in range(size)])
+        return (quat_to_matrix_t(torch.from_numpy(rot)), torch.from_numpy(root), torch.from_numpy(rest),
+                torch.from_numpy(body_a), torch.from_numpy(body_b), torch.from_numpy(src))
+
+
+def _window(out: np.ndarray, frames: np.ndarray) -> None:
+    """Fill ``out`` (T, ...) with ``frames`` (n <= T, ...); a short clip holds its last pose."""
+    n = len(frames)
+    out[:n], out[n:] = frames, frames[n - 1]
+
+
+def _turn(a: float, rot: np.ndarray, root: np.ndarray, *points: np.ndarray) -> None:
+    """Turn a window by the yaw ``a`` about the world origin, in place: the same motion facing
+    elsewhere. rot (T, 22, 4) local quaternions (the pelvis's turns), root (T, 3), points (T, ..., 3)."""
+    yaw = np.array([np.cos(a / 2), 0.0, np.sin(a / 2), 0.0], np.float32)
+    rot[:, 0] = _qmul(yaw, rot[:, 0])
+    c_, s_ = np.cos(a), np.sin(a)
+    for xyz in (root, *points):
+        x, z = xyz[..., 0].copy(), xyz[..., 2].copy()
+        xyz[..., 0], xyz[..., 2] = c_ * x + s_ * z, -s_ * x + c_ * z
 
 
 def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -201,13 +238,17 @@ def depth_like_noise(shape: tuple[int, int, int, int], scale: torch.Tensor) -> t
     return out
 
 
-def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
-    """``noise``: size of the depth-like source noise (0 = exact source joints)."""
-    rot, root, clip_rest, body_a, body_b = batch
-    _, src = on_body(rot, root, clip_rest, body_a)
+def losses(net: RetargetNet, batch, noise: float, smooth_weight: float = 10.0) -> dict[str, torch.Tensor]:
+    """``noise``: size of the depth-like source noise (0 = exact source joints). A batch with a
+    sixth member (``Sampler.chain_batch``) brings its own source joints, from the depth chain."""
+    rot, root, clip_rest, body_a, body_b = batch[:5]
+    if len(batch) > 5:
+        src = batch[5]
+    else:
+        _, src = on_body(rot, root, clip_rest, body_a)
+        if noise > 0:
+            src = src + depth_like_noise(tuple(src.shape), noise * torch.rand(src.shape[0]))
     gt_root, gt = on_body(rot, root, clip_rest, body_b)
-    if noise > 0:
-        src = src + depth_like_noise(tuple(src.shape), noise * torch.rand(src.shape[0]))
     scale_b = leg_length(body_b)[:, None]  # B x 1 x 1 x 1: lengths in target leg lengths
     pred_rot, pred_root, pred = net.retarget(src, body_a, body_b)
     out = {
@@ -215,7 +256,7 @@ def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
         "rot": (pred_rot - rot).abs().mean(),
         "root": ((pred_root - gt_root).abs() / scale_b[..., 0]).mean(),
         "smooth": (((torch.diff(pred, dim=1) - torch.diff(gt, dim=1)).abs() / scale_b).mean()
-                   + ((torch.diff(pred, 2, dim=1) - torch.diff(gt, 2, dim=1)).abs() / scale_b).mean()) * 10.0,
+                   + ((torch.diff(pred, 2, dim=1) - torch.diff(gt, 2, dim=1)).abs() / scale_b).mean()) * smooth_weight,
     }
     # Cycle A -> B -> A: the retargeted joints, fed back as a source on B, must give A's joints.
     # On a quarter of the batch: the second pass doubles the cost and the signal is redundant.
@@ -229,7 +270,9 @@ def losses(net: RetargetNet, batch, noise: float) -> dict[str, torch.Tensor]:
 
 
 def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, batch: int, lr: float,
-          log, noise_scale: float = 1.2) -> dict:
+          log, noise_scale: float = 1.2, chain_share: float = 0.0, smooth_weight: float = 10.0) -> dict:
+    """``chain_share`` of the batches take their source joints from the depth chain (the sampler's
+    ``chain``); the rest are split evenly between depth-like noise and exact sources."""
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-5)
     start = time.monotonic()
     step, history = 0, []
@@ -239,9 +282,14 @@ def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, ba
         for g in opt.param_groups:
             g["lr"] = lr * 0.5 * (1 + np.cos(np.pi * min(frac, 1.0)))
         long = step % 4 == 3  # a quarter of the windows are 4 s long, against drift in long runs
-        b = sampler.batch(batch // 4 if long else batch, 120 if long else 30)
-        noise = noise_scale if sampler.rng.random() < 0.5 else 0.0
-        out = losses(net, b, noise)
+        size, length = (batch // 4, 120) if long else (batch, 30)
+        u = sampler.rng.random()
+        if u < chain_share:
+            b, noise = sampler.chain_batch(size, length), 0.0
+        else:
+            b = sampler.batch(size, length)
+            noise = noise_scale if (u - chain_share) / (1.0 - chain_share) < 0.5 else 0.0
+        out = losses(net, b, noise, smooth_weight)
         opt.zero_grad()
         out["total"].backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
@@ -292,6 +340,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--noise", type=float, default=1.2,
                     help="depth-like source noise in half the batches: up to this x the measured skeleton error")
+    ap.add_argument("--chain-share", type=float, default=0.5,
+                    help="share of the batches whose source joints come from the depth chain "
+                         "(models.train.chain_sources; 0 = none, no chain runs needed)")
+    ap.add_argument("--chain-runs", type=int, default=2, help="depth-chain runs per training clip")
+    ap.add_argument("--smooth", type=float, default=10.0, help="weight of the velocity + acceleration loss")
     ap.add_argument("--bodies", choices=("library", "generic"), default="library",
                     help="training bodies: the body library's presets or generic T-poses")
     ap.add_argument("--val-bodies", choices=("library", "generic"), default=None,
@@ -315,9 +368,19 @@ def main(argv: list[str] | None = None) -> int:
     val_names, val_rests = body_rests("val", args.val_bodies or args.bodies)
     log(f"{len(train_ids)} training clips, {len(val_ids)} held-out; bodies {len(train_names)} / {len(val_names)}")
 
+    chain = None
+    if args.chain_share > 0:
+        if args.bodies != "library":
+            raise SystemExit("--chain-share needs the body library (--bodies library) or 0")
+        from models.train.chain_sources import build as build_chain
+
+        chain = build_chain(data, 1 if args.quick else args.chain_runs, 60 if args.quick else 300,
+                            clip_limit=4 if args.quick else None)
+        log(f"depth chain: {len(chain['clip'])} runs, {len(chain['joints'])} frames")
     net = RetargetNet(hidden=args.hidden)
-    sampler = Sampler(data, train_ids, train_rests, args.seed)
-    run = train(net, sampler, minutes, steps, batch=BATCH, lr=2e-3, log=log, noise_scale=args.noise)
+    sampler = Sampler(data, train_ids, train_rests, args.seed, chain)
+    run = train(net, sampler, minutes, steps, batch=BATCH, lr=2e-3, log=log, noise_scale=args.noise,
+                chain_share=args.chain_share, smooth_weight=args.smooth)
     path = out / "retarget.onnx"
     export_onnx(net, str(path))
     log(f"exported {path} after {run['steps']} steps")
@@ -339,9 +402,17 @@ def main(argv: list[str] | None = None) -> int:
                  "train_frames": frames, "val_subjects": [7, 8, 12, 16], "val_clips": len(val_ids),
                  "train_bodies": train_names, "val_bodies": val_names,
                  "augmentation": "random yaw; per-bone length x0.85-1.15; source noise like the depth skeleton's "
-                                 f"(per-joint size DEPTH_NOISE_MM x U(0, {args.noise}), AR(1) {DEPTH_NOISE_CORR} per frame) in half the batches"},
+                                 f"(per-joint size DEPTH_NOISE_MM x U(0, {args.noise}), AR(1) {DEPTH_NOISE_CORR} per frame) in half the batches "
+                                 "that do not come from the depth chain",
+                 "depth_chain": None if chain is None else {
+                     "share": args.chain_share, "module": "models.train.chain_sources",
+                     "runs": int(len(chain["clip"])), "frames": int(len(chain["joints"])),
+                     "found": round(float(chain["found"].mean()), 4),
+                     "what": "training clips on training bodies seen by the virtual OAK-D (1.5-4 m, within 90 "
+                             "degrees of the front), the shipped skeleton stage's online output as the source, "
+                             "body A the T-pose estimated from it"}},
         "losses": {"supervised": "L1 joints + 0.5 rotation matrices + root (exact targets)",
-                   "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": "10 x (L1 velocity + L1 acceleration) against the truth",
+                   "cycle": "0.5 x L1 joints A->B->A (on a quarter of each batch)", "rot_cycle": LAMBDA_ROT, "smooth": f"{args.smooth:g} x (L1 velocity + L1 acceleration) against the truth",
                    "adversarial": "not used"},
         "recipe": {"windows": "30 frames (a quarter 120)", "batch": BATCH, "optimizer": "AdamW 2e-3 cosine",
                    "steps": run["steps"], "seed": args.seed, "threads": 1},
