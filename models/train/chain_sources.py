@@ -30,12 +30,13 @@ FPS = 30.0
 
 
 def skeleton_files_key() -> str:
-    """Short hash of the shipped skeleton regressor and online temporal model."""
+    """Short hash of the shipped skeleton regressor, online temporal model and person finder."""
+    from models.skeleton import preprocess
     from models.skeleton.runtime import DEFAULT_MODEL
     from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL
 
     h = hashlib.sha256()
-    for p in (DEFAULT_MODEL, DEFAULT_TEMPORAL_MODEL):
+    for p in (DEFAULT_MODEL, DEFAULT_TEMPORAL_MODEL, Path(preprocess.__file__)):
         h.update(Path(p).read_bytes())
     return h.hexdigest()[:12]
 

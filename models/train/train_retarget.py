@@ -10,6 +10,10 @@ per-bone length factors (0.85-1.15, left/right alike). Source joints = FK on A w
 scaled by A's leg ratio (plus, in half the batches, noise shaped like the depth skeleton stage's
 error: measured per-joint size and frame-to-frame correlation, ``depth_like_noise``); the exact
 answer on B = the same rotations on B's T-pose with the root scaled by B's leg ratio (CONVENTIONS.md).
+With ``--chain-share S`` (default 0.5) a share S of the batches instead takes its source joints
+from the whole depth chain (virtual OAK-D -> the shipped skeleton stage, ``models.train.chain_sources``,
+built once and cached), with body A the T-pose the pipeline estimates from them: the network
+then learns the skeleton stage's real errors, not only a noise model of them.
 
 Losses (see docs/learned_retargeting.md): supervised joints / rotations / root against the exact
 answer; joint cycle consistency A->B->A; rotation cycle (lambda_rot = 0.01, rotations of A->B and
