@@ -11,15 +11,15 @@ random placement (1.5-4 m, within 90 degrees of the performer's front) and put t
 skeleton stage online (temporal model included), as ``live.retarget.evaluate.depth_skeletons``
 runs it. Kept per run: the stage's joints in the clip's coordinates (frames where nobody was found
 hold the last skeleton, as the live avatar does), the found mask, and the performer's T-pose
-estimated from those joints as the pipeline estimates it. Cached in .cache/ under the skeleton
-files' hashes, so a new skeleton model makes a new set.
+estimated from those joints as the pipeline estimates it. Cached in .cache/ under the hashes of
+the skeleton files and the person finder, so a new skeleton stage makes a new set. The default
+set (96 clips x 2 runs of up to 300 frames: 192 runs, 35,424 frames) takes ~8 min on 2 cores.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

@@ -83,24 +83,13 @@ def is_wrapped(model) -> bool:
     return any(node.name.startswith(PREFIX) for node in model.graph.node)
 
 
-def measure(path: Path, data: dict[str, dict], num_points: int) -> dict:
-    """The skeleton card's three validation results of the ONNX file ``path`` (as train_skeleton)."""
-    from models.skeleton.runtime import SkeletonRegressor
-    from models.train.train_skeleton import split_results
-
-    reg = SkeletonRegressor(path)
-    out = {}
-    for split, d in data.items():
-        pts = d["points"][:, :num_points]
-        out.update(split_results(split, np.concatenate([reg(pts[a:a + 256]) for a in range(0, len(pts), 256)]), d))
-    return out
-
-
 def apply_mirror_average(path: Path, data: dict[str, dict], num_points: int,
                          single: dict) -> tuple[dict, dict]:
     """Wrap the ONNX file ``path`` in place; returns its card's new "metrics" (re-measured on
     ``data``) and the "test_time_mirror" record, with ``single`` (the metrics before) in it."""
     import onnx
+
+    from models.train.measure_skeleton import measure
 
     onnx.save(wrap_with_mirror_average(onnx.load(str(path))), str(path))
     keys = ("mpjpe_mm", "pa_mpjpe_mm", "pck_10cm", "upper_body_mpjpe_mm")
@@ -114,7 +103,7 @@ def apply_mirror_average(path: Path, data: dict[str, dict], num_points: int,
 def main(argv: list[str] | None = None) -> dict:
     import onnx
 
-    from sim.skeleton_data import generate
+    from models.train.measure_skeleton import measure, validation_sets
 
     p = argparse.ArgumentParser(prog="mirror_average", description=__doc__.splitlines()[0])
     p.add_argument("--model", type=Path, default=WEIGHTS / "skeleton.onnx")
@@ -134,9 +123,7 @@ def main(argv: list[str] | None = None) -> dict:
     onnx.save(model, str(out))
     card_path = out.with_suffix(".json")
     num_points = int(card.get("num_points", 256))
-    # The card's validation sets, as train_skeleton draws them (seed 1 and 2 beside training's 0).
-    data = {"val": generate("val", args.val, seed=1, workers=args.workers),
-            "val_upper": generate("val_upper", max(args.val // 3, 12), seed=2, workers=args.workers)}
+    data = validation_sets(args.val, args.workers)
     single = measure(out, data, num_points)
     card["metrics"], card["test_time_mirror"] = apply_mirror_average(out, data, num_points, single)
     card_path.write_text(json.dumps(card, indent=1) + "\n")
