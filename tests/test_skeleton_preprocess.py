@@ -8,7 +8,7 @@ import pytest
 from live.frames import DepthFrame
 from live.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
-from models.skeleton.preprocess import R2_VISITS, BackgroundModel, PersonFinder, PreprocessConfig, r2_grid_order
+from models.skeleton.preprocess import R2_STEP, R2_VISITS, BackgroundModel, PersonFinder, PreprocessConfig, r2_grid_order
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
 from sim.room import Box, Room, capsule_body
 
@@ -236,8 +236,14 @@ def test_r2_order_spreads_any_prefix_evenly_and_is_distinct():
 
     r2_empty, random_empty = [], []
     for _ in range(50):
-        order = r2_grid_order(rows, cols, 600, rng.random(2))
+        offset = rng.random(2)
+        order = r2_grid_order(rows, cols, 600, offset)
         assert len(np.unique(order)) == len(order) and order.min() >= 0 and order.max() < rows * cols
+        # The cells in the order the sequence first visits them.
+        k = (np.arange(1, 601)[:, None] * R2_STEP + offset) % 1.0
+        visits = (k[:, 0] * rows).astype(int) * cols + (k[:, 1] * cols).astype(int)
+        _, first = np.unique(visits, return_index=True)
+        np.testing.assert_array_equal(order, visits[np.sort(first)])
         assert len(order) > 550  # few repeats to drop
         # 300 visits over 150 blocks: each block's share is 2.
         r2_empty.append(empty_blocks(order[:300]))
