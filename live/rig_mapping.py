@@ -356,12 +356,39 @@ _DEFAULT_REST = default_rest_joints().astype(np.float64)
 _DEGENERATE = np.deg2rad(150.0)  # a bone this far from its T-pose direction has no clear twist
 
 
+#: Mean joint speed (m/s) between two frames that no performed motion reaches: fast martial-arts
+#: strikes in ../shared/data/bvh peak at 9 m/s at 120 fps, a bind-pose frame leaves at 15-160.
+BIND_POSE_JUMP_MPS = 12.0
+
+
 def load_motion(path: str | Path, *, rig: str | None = None, scale: float | str | None = None,
                 reference: str | int = "auto") -> Motion:
     """Read a BVH file (any rig, lengths converted to metres) and map it onto the canonical
-    skeleton. ``scale``: metres per file unit, a unit name, or None to guess it."""
+    skeleton, every frame kept. ``scale``: metres per file unit, a unit name, or None to guess it.
+    To use a clip as a performance, see ``trim_bind_pose``."""
     clip = read_bvh(path, scale="auto" if scale is None else scale)
     return map_clip(clip, rig, reference=reference)
+
+
+def trim_bind_pose(motion: Motion, jump_mps: float = BIND_POSE_JUMP_MPS) -> Motion:
+    """The motion without the leading frames it leaves faster than a body moves (mean joint speed
+    above ``jump_mps``). Some exporters put the rig's bind pose (a T-pose, often at the origin)
+    before the take: 76 of the 119 clips of ../shared/data/bvh (most MotionBuilder and DAZ
+    conversions) start with one, and the take then teleports every joint within a frame, which
+    no performer does and no online tracker can follow. Whoever plays a clip as a performance
+    (evaluation, synthetic sessions) cuts them; ``load_motion`` keeps every frame, so files read
+    back as written. The mapping's reference pose was chosen before the cut, so rest joints and
+    rotations are unchanged; a clip of such frames only is returned as it is."""
+    if motion.num_frames < 2:
+        return motion
+    speed = np.linalg.norm(np.diff(motion.joints, axis=0), axis=-1).mean(axis=1) * motion.fps
+    first = 0
+    while first < len(speed) and speed[first] > jump_mps:
+        first += 1
+    if first == 0 or first >= motion.num_frames - 1:
+        return motion
+    return replace(motion, joints=motion.joints[first:], rotations=motion.rotations[first:],
+                   root=motion.root[first:])
 
 
 def map_clip(clip: BvhClip, rig: str | RigTable | None = None, *,

@@ -26,7 +26,7 @@ from live.body import Body, load_body, save_body
 from live.errors import UserInputError
 from live.frames import DepthFrame, GroundTruth
 from live.kinematics import forward_kinematics
-from live.rig_mapping import Motion, load_motion, resample
+from live.rig_mapping import Motion, load_motion, resample, trim_bind_pose
 from live.skeleton import JOINT_INDEX, pelvis_height
 from live.skinning import lbs
 from live.sources import StreamInfo
@@ -167,7 +167,7 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
     """Write a synthetic session; returns a summary dict."""
     from live.session import SessionWriter
 
-    motion = load_motion(opts.motion)
+    motion = trim_bind_pose(load_motion(opts.motion))  # a performer starts in motion, not in a bind pose
     body = load_body(opts.body)
     scene = SyntheticScene.build(motion, body, camera=opts.camera, fps=opts.fps, placement=opts.placement,
                                  noise=NoiseModel() if opts.noise else NoiseModel.none(), seed=opts.seed,
@@ -211,7 +211,8 @@ class SimulatedSource:
         path = Path(motion_path)
         if not path.is_file():
             raise UserInputError(f"no such motion file: {path}")
-        self.scene = SyntheticScene.build(load_motion(path), load_body(body), camera=camera, seed=seed)
+        self.scene = SyntheticScene.build(trim_bind_pose(load_motion(path)), load_body(body), camera=camera,
+                                          seed=seed)
         self.name = name
         self.speed = speed
         self.loop = loop

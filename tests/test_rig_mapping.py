@@ -13,8 +13,8 @@ from live.bvh import (BvhSkeleton, bvh_forward_kinematics, clip_from_rotations, 
                       parse_bvh, read_bvh, write_canonical_bvh)
 from live.errors import FormatError
 from live.kinematics import forward_kinematics
-from live.rig_mapping import (TABLES, auto_mapping, detect_rig, load_motion, map_clip, resample,
-                              source_joints, split_name)
+from live.rig_mapping import (BIND_POSE_JUMP_MPS, TABLES, Motion, auto_mapping, detect_rig, load_motion, map_clip,
+                              resample, source_joints, split_name, trim_bind_pose)
 from live.rotations import (matrix_to_quat, quat_angle, quat_conjugate, quat_from_axis_angle,
                             quat_multiply, quat_to_matrix)
 from live.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
@@ -293,3 +293,54 @@ def test_anny_cmu_mb_rig_table():
     m = map_clip(clip_from_rotations(sk, 1 / 30, q, np.zeros((5, 3)) + heads["Hips"]))
     assert m.source_rig == "anny_cmu_mb"
     assert m.rest_joints[JOINT_INDEX["left_wrist"], 0] > 0.4  # left on +x, arms out
+
+
+def _walk(frames: int, fps: float = 30.0) -> Motion:
+    """A canonical body walking forward at 1.2 m/s, its knees swinging."""
+    rest = default_rest_joints(1.75)
+    t = np.arange(frames) / fps
+    angle = 0.5 * np.sin(2 * np.pi * t)[:, None] * np.array([1.0, 0.0, 0.0])
+    q = np.tile(np.array([1.0, 0, 0, 0]), (frames, 22, 1))
+    q[:, JOINT_INDEX["left_hip"]] = quat_from_axis_angle(angle)
+    q[:, JOINT_INDEX["right_hip"]] = quat_from_axis_angle(-angle)
+    root = np.stack([np.zeros(frames), np.full(frames, rest[0, 1]), 1.2 * t], axis=1)
+    joints, _ = forward_kinematics(q, root, rest)
+    return Motion("walk", fps, joints.astype(np.float32), q.astype(np.float32), root.astype(np.float32),
+                  rest.astype(np.float32), "canonical")
+
+
+def test_trim_bind_pose_drops_a_leading_tpose_the_take_jumps_from():
+    walk = _walk(40)
+    walk = replace(walk, root=walk.root + np.float32([2.0, 0, 3.0]), joints=walk.joints + np.float32([2.0, 0, 3.0]))
+    rest = walk.rest_joints
+    # the exporter's bind pose: identity rotations at the origin, one frame before the take
+    bind = replace(walk, joints=np.concatenate([rest[None], walk.joints]),
+                   rotations=np.concatenate([np.tile(np.float32([1, 0, 0, 0]), (1, 22, 1)), walk.rotations]),
+                   root=np.concatenate([rest[None, 0], walk.root]))
+    out = trim_bind_pose(bind)
+    assert out.num_frames == walk.num_frames
+    np.testing.assert_array_equal(out.joints, walk.joints)
+    np.testing.assert_array_equal(out.rotations, walk.rotations)
+    np.testing.assert_array_equal(out.rest_joints, walk.rest_joints)
+    # a take that starts in motion (or in a T-pose it leaves at a body's speed) keeps every frame
+    assert trim_bind_pose(walk) is walk
+    slow = _walk(40, fps=240.0)  # ~1 m/s however high the frame rate
+    assert trim_bind_pose(slow) is slow
+    assert trim_bind_pose(replace(walk, joints=walk.joints[:1], rotations=walk.rotations[:1],
+                                  root=walk.root[:1])).num_frames == 1
+
+
+@needs_data
+def test_shared_clips_lose_their_bind_pose_only():
+    """mb_12_01 (MotionBuilder) starts with a bind pose, cc_002_05 (the demo's) does not; after the
+    cut no frame-to-frame speed near the threshold is left at the start."""
+    mb = load_motion(DATA / "mb_12_01.bvh")
+    cut = trim_bind_pose(mb)
+    assert cut.num_frames == mb.num_frames - 1
+    speed = np.linalg.norm(np.diff(cut.joints[:10], axis=0), axis=-1).mean(axis=1) * cut.fps
+    assert speed.max() < BIND_POSE_JUMP_MPS / 4
+    cc = load_motion(DATA / "cc_002_05.bvh")
+    assert trim_bind_pose(cc) is cc
+    from live.retarget.evaluate import prepare_motion  # evaluation plays clips as performances
+
+    assert prepare_motion(DATA / "mb_12_01.bvh", fps=mb.fps).num_frames == cut.num_frames
