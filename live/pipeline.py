@@ -43,6 +43,9 @@ class Stage(Protocol):
     def observe(self, frame: object) -> None:
         """See a side frame (mocap packet, ground truth) in stream order."""
 
+    # Optional: ``drain() -> list[FrameResult]``, called once the sources have ended: results the
+    # stage still holds (a lagging skeleton model's last frames), passed on like any frame's.
+
 
 class Sink(Protocol):
     def send(self, result: FrameResult) -> None: ...
@@ -106,6 +109,7 @@ class Pipeline:
         self.queue_wait = LatencyRecorder()
         self.sink_errors = 0
         self.processed = 0
+        self.drained = 0  # results stages gave at the end of the stream (``_drain``)
         self.skipped_latest = 0
         self.recorded = 0
         self._latest_truth: GroundTruth | None = None
@@ -170,26 +174,8 @@ class Pipeline:
         truth = self._latest_truth
         if truth is not None and truth.t_ns <= frame.t_ns:
             result.truth = truth
-        for stage in self.stages:
-            st = self.stage_stats[stage.name]
-            st.frames_in += 1
-            t0 = time.perf_counter()
-            try:
-                produced = stage.process(result)
-            except Exception as exc:  # noqa: BLE001 - counted; the stream goes on
-                st.errors += 1
-                produced = False
-                log.warning("stage %s failed on frame %d: %s", stage.name, frame.t_ns, exc)
-            ms = (time.perf_counter() - t0) * 1e3
-            result.latency_ms[stage.name] = ms
-            st.latency.add(ms)
-            st.frames_out += bool(produced)
-        for sink in self.sinks:
-            try:
-                sink.send(result)
-            except Exception as exc:  # noqa: BLE001 - a broken sink never stops capture
-                self.sink_errors += 1
-                log.warning("sink %s failed: %s", type(sink).__name__, exc)
+        self._run_stages(result, self.stages)
+        self._send(result)
         now = time.monotonic_ns()
         # Live: from the sensor timestamp (what a performer feels). Replay: recorded timestamps
         # are from another day and frames queue on purpose, so from the start of processing.
@@ -198,8 +184,50 @@ class Pipeline:
         if self.mode == "every":
             self.queue_wait.add((started_ns - arrival.arrived_ns) / 1e6)
         self.processed += 1
+
+    def _run_stages(self, result: FrameResult, stages: Sequence[Stage]) -> None:
+        for stage in stages:
+            st = self.stage_stats[stage.name]
+            st.frames_in += 1
+            t0 = time.perf_counter()
+            try:
+                produced = stage.process(result)
+            except Exception as exc:  # noqa: BLE001 - counted; the stream goes on
+                st.errors += 1
+                produced = False
+                log.warning("stage %s failed on frame %d: %s", stage.name, result.t_ns, exc)
+            ms = (time.perf_counter() - t0) * 1e3
+            result.latency_ms[stage.name] = ms
+            st.latency.add(ms)
+            st.frames_out += bool(produced)
+
+    def _send(self, result: FrameResult) -> None:
+        for sink in self.sinks:
+            try:
+                sink.send(result)
+            except Exception as exc:  # noqa: BLE001 - a broken sink never stops capture
+                self.sink_errors += 1
+                log.warning("sink %s failed: %s", type(sink).__name__, exc)
         if self.on_result is not None:
             self.on_result(result)
+
+    def _drain(self) -> None:
+        """The sources have ended: what a stage still holds goes through the stages after it and
+        the sinks (not timed: these are no new frames)."""
+        for i, stage in enumerate(self.stages):
+            drain = getattr(stage, "drain", None)
+            if drain is None:
+                continue
+            try:
+                results = drain()
+            except Exception as exc:  # noqa: BLE001 - counted, as a failed frame would be
+                self.stage_stats[stage.name].errors += 1
+                log.warning("stage %s failed to drain: %s", stage.name, exc)
+                continue
+            for result in results:
+                self._run_stages(result, self.stages[i + 1:])
+                self._send(result)
+                self.drained += 1
 
     def _next_of(self, run: _SourceRun, timeout: float):
         item = run.reader.next(timeout=timeout)
@@ -294,6 +322,7 @@ class Pipeline:
                 self._run_every(stop)
             else:
                 self._run_latest(stop)
+            self._drain()
         finally:
             stop.set()
             for run in self._runs:
@@ -309,6 +338,15 @@ class Pipeline:
             self._wall_s = time.perf_counter() - t0
         return self.stats()
 
+    def _stage_dict(self, stage: Stage) -> dict:
+        """A stage's timing and frame counts, with its own event counters when it keeps some
+        (the skeleton stage: nobody in view, flips, resets, frames flushed at the end...)."""
+        out = self.stage_stats[stage.name].as_dict()
+        counters = getattr(stage, "counters", None)
+        if isinstance(counters, dict) and counters:
+            out["counters"] = {k: int(v) for k, v in counters.items()}
+        return out
+
     def stats(self) -> dict:
         sources = {}
         overwritten = 0
@@ -321,10 +359,11 @@ class Pipeline:
         return {
             "mode": self.mode,
             "frames": self.processed,
+            "drained": self.drained,
             "wall_s": round(self._wall_s, 4),
             "fps": round(self.processed / self._wall_s, 3) if self._wall_s > 0 else 0.0,
             "sources": sources,
-            "stages": {name: st.as_dict() for name, st in self.stage_stats.items()},
+            "stages": {stage.name: self._stage_dict(stage) for stage in self.stages},
             "end_to_end": {"frames": self.end_to_end.count, "latency_ms": self.end_to_end.summary(),
                            "origin": "processing start" if self.mode == "every" else "sensor timestamp"},
             "ring_wait_ms": self.queue_wait.summary(),

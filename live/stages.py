@@ -93,12 +93,14 @@ class RetargetStage:
         from live.frames import AvatarPose
         from live.retarget.analytic import estimate_rest_joints
 
+        # The pose is of the skeleton's own instant: behind a lagging skeleton model that is an
+        # earlier frame than the result's (and, for the skeletons it gives at the end, the frame's).
         if self.use_truth:
             if result.truth is None:
                 return False
-            joints = result.truth.joints
+            joints, t_ns = result.truth.joints, result.truth.t_ns
         elif result.skeleton is not None:
-            joints = result.skeleton.joints
+            joints, t_ns = result.skeleton.joints, result.skeleton.t_ns
         else:
             return False
         if len(self._seen) < self.warmup:
@@ -109,9 +111,9 @@ class RetargetStage:
             else:
                 self._update_source(rest)
         dt = None
-        if self._last_t_ns is not None and result.t_ns > self._last_t_ns:
-            dt = (result.t_ns - self._last_t_ns) / 1e9
-        self._last_t_ns = result.t_ns
+        if self._last_t_ns is not None and t_ns > self._last_t_ns:
+            dt = (t_ns - self._last_t_ns) / 1e9
+        self._last_t_ns = t_ns
         root, rotations, avatar_joints = self._retargeter.step(joints, dt=dt)
         vertices = None
         if self.skin:
@@ -120,7 +122,7 @@ class RetargetStage:
             # The retargeter's own global rotations and joints: no second FK from quaternions.
             g = pose_transforms(self._retargeter.last_globals, avatar_joints, self.avatar.rest_joints)
             vertices = skin(self.avatar.vertices, self.avatar.weights, g[None])[0]
-        result.avatar = AvatarPose(t_ns=result.t_ns, root=np.asarray(root, np.float32),
+        result.avatar = AvatarPose(t_ns=t_ns, root=np.asarray(root, np.float32),
                                    rotations=np.asarray(rotations, np.float32),
                                    joints=np.asarray(avatar_joints, np.float32), vertices=vertices)
         return True

@@ -1,6 +1,5 @@
 """Sessions: codecs round-trip, files open with the mcap reader (CRCs on), damage is reported."""
 
-import io
 
 import numpy as np
 import pytest

@@ -111,6 +111,10 @@ def test_lagging_model_estimates_an_earlier_frame_stamped_with_its_time():
     got = _feed(refiner, t30, rng)
     assert got[0] is None and got[1] is None  # frames 0 and 1 come out with frames 2 and 3
     assert [g.t_ns for g in got[2:]] == t30[:-2].tolist()
+    # At the stream's end the last two come from flush, once; finite, in the person frame's world
+    owed = refiner.flush()
+    assert [g.t_ns for g in owed] == t30[-2:].tolist() and refiner.flush() == []
+    assert all(np.isfinite(g.joints).all() and g.joints.shape == (22, 3) for g in owed)
     # At 15 fps the 67 ms lag is one frame.
     refiner.reset()
     t15 = 1_000_000_000 + np.round(np.arange(6) * 1e9 / 15).astype(np.int64)
@@ -127,6 +131,7 @@ def test_online_model_estimates_the_newest_frame():
     t = 1_000_000_000 + np.round(np.arange(5) * 1e9 / 30).astype(np.int64)
     got = _feed(refiner, t, rng)
     assert [g.t_ns for g in got] == t.tolist()
+    assert refiner.flush() == []  # it owes nothing
 
 
 def test_unknown_lag_is_a_user_error():

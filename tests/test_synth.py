@@ -2,7 +2,6 @@
 same bytes, and the session replays like a recorded one."""
 
 import numpy as np
-import pytest
 
 from live.body import load_body
 from live.rig_mapping import load_motion, resample

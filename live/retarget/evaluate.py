@@ -69,7 +69,7 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
     Returns (joints T x 22 x 3 world, found (T,) bool); frames where nobody was found repeat the
     last skeleton (the first found one before any), as a live avatar would hold its pose. With a
     lagging temporal model (``lag`` frames) each skeleton is put at the frame it estimates; the
-    last ``lag`` frames, which it would give after the clip's end, hold the last one."""
+    last ``lag`` come from the stage's flush at the clip's end, as a replay drains them."""
     from models.skeleton.runtime import SkeletonStage
     from sim.synth import SyntheticScene
 
@@ -84,6 +84,8 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
         sk = stage.estimate(scene.depth(i, t_ns))
         if sk is not None:
             out[frame_at[sk.t_ns]] = sk.joints + scene.shift  # back to the motion's own coordinates
+    for sk in stage.flush():
+        out[frame_at[sk.t_ns]] = sk.joints + scene.shift
     found = ~np.isnan(out[:, 0, 0])
     if not found.any():
         raise UserInputError("the skeleton stage found nobody in any frame")

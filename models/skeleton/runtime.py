@@ -66,6 +66,8 @@ class StageCounters:
     resets: int = 0
     # Frames whose skeleton a lagging temporal model will give later (the first of a take).
     delayed: int = 0
+    # Skeletons a lagging temporal model gave at the end of the stream (flush).
+    flushed: int = 0
 
 
 def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, height: int) -> np.ndarray:
@@ -113,6 +115,7 @@ class SkeletonStage:
         self._counters = StageCounters()
         self.last_cloud: PersonCloud | None = None
         self._last_t: int | None = None
+        self._last_frame: DepthFrame | None = None  # for the in-view check of flushed skeletons
         self.reset()
 
     def reset(self) -> None:
@@ -154,12 +157,17 @@ class SkeletonStage:
             joints = self.flips(joints)
         self._last_t = frame.t_ns
         t_ns = frame.t_ns
+        self._last_frame = frame
         if self.temporal is not None:
             refined = self.temporal(frame.t_ns, joints, support, cloud.to_world)
             if refined is None:  # a lagging model: this frame's skeleton comes later
                 self._counters.delayed += 1
                 return None
             t_ns, joints, support = refined.t_ns, refined.joints, refined.confidence
+        return self._finish(t_ns, joints, support, frame)
+
+    def _finish(self, t_ns: int, joints: np.ndarray, support: np.ndarray, frame: DepthFrame) -> SkeletonFrame:
+        """Confidence (depth support, in view of ``frame``), bone lengths, One Euro: the frame out."""
         conf = support
         if frame.depth_mm is not None and frame.intrinsics is not None:
             h, w = frame.depth_mm.shape
@@ -172,6 +180,15 @@ class SkeletonStage:
         return SkeletonFrame(t_ns=t_ns, joints=joints.astype(np.float32),
                              confidence=np.clip(conf, 0.0, 1.0).astype(np.float32))
 
+    def flush(self) -> list[SkeletonFrame]:
+        """At the end of a stream: the skeletons a lagging temporal model still owes (the last
+        ``lag`` frames, oldest first; none online), so that a replay gets one per frame found."""
+        if self.temporal is None or self._last_frame is None:
+            return []
+        out = [self._finish(r.t_ns, r.joints, r.confidence, self._last_frame) for r in self.temporal.flush()]
+        self._counters.flushed += len(out)
+        return out
+
     def process(self, result: FrameResult) -> bool:
         if result.depth is None:
             return False
@@ -180,6 +197,10 @@ class SkeletonStage:
             return False
         result.skeleton = skeleton
         return True
+
+    def drain(self) -> list[FrameResult]:
+        """The pipeline's end-of-stream call: ``flush`` as results of their own frames' times."""
+        return [FrameResult(t_ns=sk.t_ns, skeleton=sk) for sk in self.flush()]
 
 
 def _open_temporal(temporal: bool | str | Path, regressor_path: Path, threads: int,

@@ -16,7 +16,8 @@ A model trained with a *lag* of L samples (card ``"lag"``, default 0) trades lat
 smoothness: it sees L samples after the frame it estimates, so each skeleton comes out L / fps
 later (at 30 fps, lag 2 = 67 ms) with much less jitter. Its output is stamped with the time of
 the frame it estimates, the newest frame at least (L - 1/2) / fps old, so outputs keep the input
-frames' timestamps; the first frames of a take, and the last L of a replay, get no skeleton.
+frames' timestamps; the first frames of a take get no skeleton, and the last L of a stream come
+from ``flush()`` once it has ended (the pipeline drains them).
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ class TemporalRefiner:
 
     ``refiner(t_ns, joints_world, confidence, to_world)`` -> RefinedSkeleton of the current frame
     (lag 0) or of the frame ``lag`` samples back, or None while a lagging model waits for its
-    first frames; ``reset()`` forgets the performer. ``window``, ``fps`` and ``lag`` come from
+    first frames; ``flush()`` gives the frames still owed at the end of a stream; ``reset()``
+    forgets the performer. ``window``, ``fps`` and ``lag`` come from
     the card."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1):
@@ -143,6 +145,7 @@ class TemporalRefiner:
         self._conf = np.zeros((size, NUM_JOINTS))
         self._start = self._end = 0
         self._emitted: int | None = None
+        self._to_world: np.ndarray | None = None
 
     def _append(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray) -> None:
         """Add an observation; drop what the window can no longer reach (all but one entry older
@@ -174,12 +177,30 @@ class TemporalRefiner:
         if self._end > self._start and t_ns <= self._times[self._end - 1]:
             self.reset()  # time went backwards (a new replay): start over
         self._append(t_ns, joints_world, confidence)
-        live = slice(self._start, self._end)
-        times = self._times[live]
+        self._to_world = to_world
+        times = self._times[self._start:self._end]
         # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
         k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
+        return self._estimate(k)
+
+    def flush(self) -> list[RefinedSkeleton]:
+        """At the end of a stream, the frames a lagging model still owes (the last ``lag``; none
+        at lag 0), oldest first. Each window is anchored lag samples after its frame as usual; the
+        samples past the newest observation repeat it, flagged as not observed, as those before a
+        take's first frame repeat the first one. The model then owes nothing more until new frames
+        come."""
+        if self._to_world is None or self._end == self._start:
+            return []
+        times = self._times[self._start:self._end]
+        first = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
+        return [self._estimate(k) for k in range(first, len(times))]
+
+    def _estimate(self, k: int) -> RefinedSkeleton:
+        """The model's estimate of the k-th live observation, in the newest frame's person frame."""
+        live = slice(self._start, self._end)
+        times, to_world = self._times[live], self._to_world
         self._emitted = int(times[k])
         anchor_s = times[k] * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
         win = sample_history(times * 1e-9, self._joints[live], self._conf[live], anchor_s, to_world, self.window,
