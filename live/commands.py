@@ -274,6 +274,9 @@ def cmd_eval(args) -> int:
         report = evaluate_retarget(args.motion, load_body(args.source_body), load_body(args.target_body),
                                    from_=args.from_, retarget=args.retarget, max_frames=args.max_frames,
                                    lag=args.lag)
+        if report.get("bind_pose_frames_cut") and not args.json:
+            print(f"{Path(args.motion).name}: its first {report['bind_pose_frames_cut']} frame(s), the exporter's "
+                  "bind pose, cut (docs/motion.md)")
     print(_json.dumps(report, indent=2, default=str) if args.json else format_report(report))
     return 0
 

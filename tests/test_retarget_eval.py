@@ -83,3 +83,13 @@ def test_report_and_errors(motion, bodies):
         evaluate_retarget(motion, bodies[0], bodies[1], from_="imu", max_frames=10)
     with pytest.raises(UserInputError):
         evaluate_retarget(motion, bodies[0], bodies[1], retarget="magic", max_frames=10)
+
+
+def test_a_leading_bind_pose_is_cut_and_reported(bodies):
+    """mb_12_01 starts with the exporter's bind pose: the evaluation plays the take without it
+    and says so."""
+    if not CLIP.is_file():
+        pytest.skip("no CMU clips in ../shared")
+    r = evaluate_retarget(CLIP, bodies[0], bodies[1], retarget="analytic", max_frames=30)
+    assert r["bind_pose_frames_cut"] == 1 and r["frames"] == 30
+    assert r["mpjpe"] < 0.01  # no teleport left in the ground truth for the foot lock to fight

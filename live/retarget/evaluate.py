@@ -125,13 +125,18 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
     source_body / target_body: Body or a spec for live.body.load_body. from_: "skeleton" (exact
     source joints) or "depth" (virtual camera + skeleton regressor). retarget: "analytic" or
     "learned" (``model``: .onnx path, default the committed one). Returns a dict with the metrics
-    in metres (Acc, PA-Acc in m/frame^2), frames, fps, names and settings."""
+    in metres (Acc, PA-Acc in m/frame^2), frames, fps, names and settings, and how many leading
+    bind-pose frames of the clip (at its own rate) were cut."""
     from live.body import load_body
+    from live.rig_mapping import load_motion, trim_bind_pose
 
     if from_ not in ("skeleton", "depth"):
         raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
     if retarget not in ("analytic", "learned"):
         raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+    if isinstance(motion, (str, Path)):
+        motion = load_motion(motion)
+    cut = motion.num_frames - trim_bind_pose(motion).num_frames  # reported: the clip is shorter
     motion = prepare_motion(motion, fps, max_frames)
     src = source_body if hasattr(source_body, "rest_joints") else load_body(source_body)
     tgt = target_body if hasattr(target_body, "rest_joints") else load_body(target_body)
@@ -139,7 +144,7 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
                                                    skeleton_model=skeleton_model, lag=lag)
     result = score(motion, tgt, src_joints, src_rest, retarget, fps=fps, model=model)
     result.update(found=float(found.mean()), source_body=getattr(src, "name", str(source_body)), lag=lag,
-                  **{"from": from_})
+                  bind_pose_frames_cut=int(cut), **{"from": from_})
     return result
 
 
