@@ -359,6 +359,13 @@ _DEGENERATE = np.deg2rad(150.0)  # a bone this far from its T-pose direction has
 #: Mean joint speed (m/s) between two frames that no performed motion reaches: fast martial-arts
 #: strikes in ../shared/data/bvh peak at 9 m/s at 120 fps, a bind-pose frame leaves at 15-160.
 BIND_POSE_JUMP_MPS = 12.0
+#: A take's first LEADING_GLITCH_S may also hold a settling frame or two after the bind pose that
+#: the take leaves slower than a bind pose but faster than anything it does later: a step above
+#: GLITCH_MIN_MPS and GLITCH_RATIO x the fastest step of the rest of the take (mb_16_15: 7.2 m/s,
+#: then never above 1.3; mb_08_07: 11.0, then 2.3).
+LEADING_GLITCH_S = 0.25
+GLITCH_MIN_MPS = 3.0
+GLITCH_RATIO = 3.0
 
 
 def load_motion(path: str | Path, *, rig: str | None = None, scale: float | str | None = None,
@@ -377,7 +384,10 @@ def trim_bind_pose(motion: Motion, jump_mps: float = BIND_POSE_JUMP_MPS) -> Moti
     conversions) start with one, and the take then teleports every joint within a frame, which
     no performer does and no online tracker can follow. Whoever plays a clip as a performance
     (evaluation, synthetic sessions) cuts them; ``load_motion`` keeps every frame, so files read
-    back as written. The mapping's reference pose was chosen before the cut, so rest joints and
+    back as written. Then the frames before a leading glitch: a step in the take's first
+    ``LEADING_GLITCH_S`` faster than ``GLITCH_MIN_MPS`` and ``GLITCH_RATIO`` times the fastest
+    step of the rest of the take (a settling frame between bind pose and take: 2 of the shared
+    clips). The mapping's reference pose was chosen before the cut, so rest joints and
     rotations are unchanged; a clip of such frames only is returned as it is."""
     if motion.num_frames < 2:
         return motion
@@ -385,6 +395,13 @@ def trim_bind_pose(motion: Motion, jump_mps: float = BIND_POSE_JUMP_MPS) -> Moti
     first = 0
     while first < len(speed) and speed[first] > jump_mps:
         first += 1
+    # Then a leading glitch: a step early in the take much faster than all the take does after.
+    head = max(int(round(LEADING_GLITCH_S * motion.fps)), 1)
+    if len(speed) > first + 2 * head:
+        later = float(speed[first + head:].max())
+        glitch = np.flatnonzero(speed[first:first + head] > max(GLITCH_MIN_MPS, GLITCH_RATIO * later))
+        if len(glitch):
+            first += int(glitch[-1]) + 1
     if first == 0 or first >= motion.num_frames - 1:
         return motion
     return replace(motion, joints=motion.joints[first:], rotations=motion.rotations[first:],

@@ -330,6 +330,21 @@ def test_trim_bind_pose_drops_a_leading_tpose_the_take_jumps_from():
                                   root=walk.root[:1])).num_frames == 1
 
 
+def test_trim_bind_pose_drops_a_settling_frame_the_take_jumps_from():
+    walk = _walk(40)
+    # a settling frame after the bind pose, 25 cm off: left at 7.5 m/s, where the walk's own
+    # steps stay under 2 m/s
+    settle = walk.joints[:1] + np.float32([0.25, 0.0, 0.0])
+    glitch = replace(walk, joints=np.concatenate([settle, walk.joints]),
+                     rotations=np.concatenate([walk.rotations[:1], walk.rotations]),
+                     root=np.concatenate([walk.root[:1] + np.float32([0.25, 0.0, 0.0]), walk.root]))
+    out = trim_bind_pose(glitch)
+    np.testing.assert_array_equal(out.joints, walk.joints)
+    # the same jump later in the take is not at its start: kept
+    late = replace(walk, joints=np.concatenate([walk.joints[:30], walk.joints[30:] + np.float32([0.25, 0.0, 0.0])]))
+    assert trim_bind_pose(late) is late
+
+
 @needs_data
 def test_shared_clips_lose_their_bind_pose_only():
     """mb_12_01 (MotionBuilder) starts with a bind pose, cc_002_05 (the demo's) does not; after the
