@@ -233,10 +233,12 @@ def all_held_out_clips(bvh_dir: str | Path | None = None) -> tuple[str, ...]:
 
 def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD_OUT_CLIPS,
                    bvh_dir: str | Path | None = None, model: str | Path | None = None, seed: int = 0,
-                   lag: int = 0, feet: bool = True, progress=None) -> list[dict[str, Any]]:
+                   lag: int = 0, feet: bool = True, skeleton_model: str | Path | None = None,
+                   progress=None) -> list[dict[str, Any]]:
     """Analytic and learned side by side on held-out clips x held-out body pairs (each held-out
     preset to the next), the same source skeletons fed to both. Returns one averaged result per
-    retargeter (metrics are means over the runs; ``runs`` says how many)."""
+    retargeter (metrics are means over the runs; ``runs`` says how many). skeleton_model: the
+    skeleton regressor (default the shipped one; its temporal models are the ones beside it)."""
     from live.body import list_presets, load_body
     from sim.skeleton_data import split_bodies
 
@@ -248,7 +250,8 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
         motion = prepare_motion(bvh / clip, 30.0, max_frames)
         for i, src in enumerate(bodies):
             tgt = bodies[(i + 1) % len(bodies)]
-            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i, lag=lag) \
+            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i, lag=lag,
+                                                   skeleton_model=skeleton_model) \
                 if from_ == "depth" else source_skeletons(motion, src, from_)
             for kind in runs:
                 r = score(motion, tgt, joints, rest, kind, model=model, feet=feet)
@@ -279,9 +282,14 @@ if __name__ == "__main__":  # python -m live.retarget.evaluate [skeleton|depth] 
     cli.add_argument("--no-feet", action="store_true", help="both retargeters without foot lock and floor clearance")
     cli.add_argument("--all-clips", action="store_true",
                      help="every clip of the held-out subjects instead of one per subject")
+    cli.add_argument("--skeleton-model", type=Path, default=None,
+                     help="skeleton regressor .onnx (with depth; its temporal models beside it)")
     cli.add_argument("--card", action="store_true", help="record the table in the retargeter's model card")
     a = cli.parse_args()
+    if a.card and a.skeleton_model is not None:
+        cli.error("--card records the shipped skeleton stage's figures: drop --skeleton-model")
     table = held_out_table(a.which, max_frames=a.frames, lag=a.lag, feet=not a.no_feet,
+                           skeleton_model=a.skeleton_model,
                            clips=all_held_out_clips() if a.all_clips else HELD_OUT_CLIPS,
                            progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_report(table))
