@@ -386,8 +386,8 @@ def trim_bind_pose(motion: Motion, jump_mps: float = BIND_POSE_JUMP_MPS) -> Moti
     (evaluation, synthetic sessions) cuts them; ``load_motion`` keeps every frame, so files read
     back as written. Then the frames before a leading glitch: a step in the take's first
     ``LEADING_GLITCH_S`` faster than ``GLITCH_MIN_MPS`` and ``GLITCH_RATIO`` times the fastest
-    step of the rest of the take (a settling frame between bind pose and take: 2 of the shared
-    clips). The mapping's reference pose was chosen before the cut, so rest joints and
+    step of the rest of the take (settling frames between bind pose and take: 6 of the shared
+    clips, docs/motion.md). The mapping's reference pose was chosen before the cut, so rest joints and
     rotations are unchanged; a clip of such frames only is returned as it is."""
     if motion.num_frames < 2:
         return motion
