@@ -12,7 +12,8 @@ nearest T-pose neighbours, lengths compared with the ground truth's per frame) o
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -157,14 +158,20 @@ def source_skeletons(motion, source_body, from_: str, **depth_options) -> tuple[
     if from_ == "skeleton":
         _, joints = _on_body(motion, source_body.rest_joints)
         return joints, np.asarray(source_body.rest_joints, np.float64), np.ones(len(joints), bool)
+    joints, found = depth_skeletons(motion, source_body, **depth_options)
+    return joints, estimated_rest(joints, found), found
+
+
+def estimated_rest(joints: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """The performer's T-pose (22 x 3) as the chain estimates it from the observed joints
+    (T x 22 x 3, ``found`` (T,) the frames really observed): bone lengths from them, bone
+    directions from the training bodies' mean T-pose (the held-out ones are what is evaluated)."""
     from live.body import list_presets, mean_rest_template
     from live.retarget.analytic import estimate_rest_joints
     from sim.skeleton_data import split_bodies
 
-    joints, found = depth_skeletons(motion, source_body, **depth_options)
-    # Bone directions from the training bodies only: the held-out ones are what is evaluated.
     template = mean_rest_template(tuple(split_bodies(list_presets(), "train")))
-    return joints, estimate_rest_joints(joints[found], template), found
+    return estimate_rest_joints(np.asarray(joints)[np.asarray(found, bool)], template)
 
 
 def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, retarget: str, *, fps: float = 30.0,
@@ -231,6 +238,37 @@ def all_held_out_clips(bvh_dir: str | Path | None = None) -> tuple[str, ...]:
     return tuple(c.file for c in split_clips(list_clips(Path(bvh_dir) if bvh_dir else BVH_DIR), "val"))
 
 
+@dataclass(frozen=True)
+class HeldOutRun:
+    """One run of the held-out tables: a clip (prepared as ``prepare_motion`` does) from a held-out
+    preset onto the next one; ``seed`` draws the virtual camera's noise and samples."""
+
+    clip: str
+    motion: Any
+    source: Any
+    target: Any
+    seed: int
+
+    @property
+    def name(self) -> str:
+        return f"{self.clip} {self.source.name} -> {self.target.name}"
+
+
+def held_out_runs(clips=HELD_OUT_CLIPS, *, max_frames: int = 300, bvh_dir: str | Path | None = None,
+                  seed: int = 0) -> Iterator[HeldOutRun]:
+    """Every clip x every held-out preset as source, the next preset as target (the pairs of
+    ``held_out_table``; seeds seed + 17 k + i for clip k and source i)."""
+    from live.body import list_presets, load_body
+    from sim.skeleton_data import split_bodies
+
+    bvh = Path(bvh_dir) if bvh_dir is not None else Path(__file__).resolve().parents[3] / "shared" / "data" / "bvh"
+    bodies = [load_body(n) for n in split_bodies(list_presets(), "val")]
+    for k, clip in enumerate(clips):
+        motion = prepare_motion(bvh / clip, 30.0, max_frames)
+        for i, src in enumerate(bodies):
+            yield HeldOutRun(clip, motion, src, bodies[(i + 1) % len(bodies)], seed + 17 * k + i)
+
+
 def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD_OUT_CLIPS,
                    bvh_dir: str | Path | None = None, model: str | Path | None = None, seed: int = 0,
                    lag: int = 0, feet: bool = True, skeleton_model: str | Path | None = None,
@@ -239,31 +277,24 @@ def held_out_table(from_: str = "skeleton", *, max_frames: int = 300, clips=HELD
     preset to the next), the same source skeletons fed to both. Returns one averaged result per
     retargeter (metrics are means over the runs; ``runs`` says how many). skeleton_model: the
     skeleton regressor (default the shipped one; its temporal models are the ones beside it)."""
-    from live.body import list_presets, load_body
-    from sim.skeleton_data import split_bodies
-
-    bvh = Path(bvh_dir) if bvh_dir is not None else Path(__file__).resolve().parents[3] / "shared" / "data" / "bvh"
-    names = split_bodies(list_presets(), "val")
-    bodies = [load_body(n) for n in names]
     runs: dict[str, list[dict]] = {"analytic": [], "learned": []}
-    for k, clip in enumerate(clips):
-        motion = prepare_motion(bvh / clip, 30.0, max_frames)
-        for i, src in enumerate(bodies):
-            tgt = bodies[(i + 1) % len(bodies)]
-            joints, rest, found = source_skeletons(motion, src, from_, seed=seed + 17 * k + i, lag=lag,
-                                                   skeleton_model=skeleton_model) \
-                if from_ == "depth" else source_skeletons(motion, src, from_)
-            for kind in runs:
-                r = score(motion, tgt, joints, rest, kind, model=model, feet=feet)
-                r["found"] = float(found.mean())
-                runs[kind].append(r)
-            if progress is not None:
-                progress(f"{clip} {src.name} -> {tgt.name}")
+    sources: set[str] = set()
+    for run in held_out_runs(clips, max_frames=max_frames, bvh_dir=bvh_dir, seed=seed):
+        joints, rest, found = source_skeletons(run.motion, run.source, from_, seed=run.seed, lag=lag,
+                                               skeleton_model=skeleton_model) \
+            if from_ == "depth" else source_skeletons(run.motion, run.source, from_)
+        for kind in runs:
+            r = score(run.motion, run.target, joints, rest, kind, model=model, feet=feet)
+            r["found"] = float(found.mean())
+            runs[kind].append(r)
+        sources.add(run.source.name)
+        if progress is not None:
+            progress(run.name)
     out = []
     for kind, rows in runs.items():
         mean = {m: float(np.mean([r[m] for r in rows])) for m in METRICS + ("found",)}
         mean.update(retarget=kind, feet=feet, motion=f"{len(clips)} held-out clips x {max_frames} frames",
-                    source_body=f"{len(bodies)} held-out bodies", target_body="the next one", runs=len(rows), lag=lag,
+                    source_body=f"{len(sources)} held-out bodies", target_body="the next one", runs=len(rows), lag=lag,
                     frames=int(sum(r["frames"] for r in rows)), fps=30.0, **{"from": from_})
         out.append(mean)
     return out
