@@ -20,8 +20,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from live.bvh import bvh_forward_kinematics, read_bvh, write_bvh
-from live.rig_mapping import map_clip
+from live.io.bvh import bvh_forward_kinematics, read_bvh, write_bvh
+from live.motion.rig_mapping import map_clip
 
 ROOT = Path(__file__).resolve().parents[1]
 

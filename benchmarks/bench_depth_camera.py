@@ -17,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from live.skeleton import default_rest_joints  # noqa: E402
+from live.core.skeleton import default_rest_joints  # noqa: E402
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
 from sim.room import Box, Room, capsule_body  # noqa: E402
 
@@ -25,7 +25,7 @@ from sim.room import Box, Room, capsule_body  # noqa: E402
 def body_mesh() -> tuple[np.ndarray, np.ndarray, str]:
     """The library's default body if it exists, else the capsule stand-in (~7k vertices)."""
     try:
-        from live.body import load_body
+        from live.body.library import load_body
 
         b = load_body("default")
         return np.asarray(b.vertices, np.float32), np.asarray(b.faces, np.int32), f"body:{b.name}"

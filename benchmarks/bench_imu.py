@@ -32,10 +32,10 @@ sys.path.insert(0, str(ROOT))
 from drivers.serial_source import SerialSource  # noqa: E402
 from live.imu.calibration import yaw_of  # noqa: E402
 from live.imu.stage import ImuSkeletonStage, build_stages  # noqa: E402
-from live.pipeline import Pipeline  # noqa: E402
-from live.rig_mapping import load_motion, resample  # noqa: E402
-from live.session import SessionReader  # noqa: E402
-from live.skeleton import default_rest_joints  # noqa: E402
+from live.pipeline.runner import Pipeline  # noqa: E402
+from live.motion.rig_mapping import load_motion, resample  # noqa: E402
+from live.io.session import SessionReader  # noqa: E402
+from live.core.skeleton import default_rest_joints  # noqa: E402
 from sim.imu_device import SimulatedSuit  # noqa: E402
 from sim.imu_model import SimpleMotion  # noqa: E402
 from sim.imu_stream import MotionScene, NoisySkeletonStage, calibration_prelude, write_suit_session  # noqa: E402

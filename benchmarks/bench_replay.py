@@ -23,10 +23,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from live.app import DEMO_SESSION  # noqa: E402
-from live.body import load_body  # noqa: E402
-from live.pipeline import Pipeline  # noqa: E402
-from live.stages import RetargetStage  # noqa: E402
+from live.app.running import DEMO_SESSION  # noqa: E402
+from live.body.library import load_body  # noqa: E402
+from live.pipeline.runner import Pipeline  # noqa: E402
+from live.pipeline.stages import RetargetStage  # noqa: E402
 from models.skeleton.runtime import SkeletonStage  # noqa: E402
 from sim.replay import ReplaySource  # noqa: E402
 

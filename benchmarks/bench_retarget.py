@@ -2,9 +2,9 @@
 
 Run: .venv/bin/python benchmarks/bench_retarget.py [--frames 600] [--clips 3]
 Timing: median and p95 of AnalyticRetargeter.step over a motion, per configuration, plus the
-same with LBS of a ~7k-vertex mesh when live/skinning.py exists. Accuracy: MPJPE against the
+same with LBS of a ~7k-vertex mesh when live/body/skinning.py exists. Accuracy: MPJPE against the
 ground truth (source rotations on the target rest skeleton, root scaled by the leg ratio) on
-synthetic held-out bodies and on real CMU clips (when live/rig_mapping.py exists).
+synthetic held-out bodies and on real CMU clips (when live/motion/rig_mapping.py exists).
 """
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from live.kinematics import forward_kinematics  # noqa: E402
-from live.metrics import mpjpe  # noqa: E402
-from live.retarget import AnalyticRetargeter, leg_ratio, retarget_motion  # noqa: E402
-from live.skeleton import default_rest_joints  # noqa: E402
+from live.core.kinematics import forward_kinematics  # noqa: E402
+from live.core.metrics import mpjpe  # noqa: E402
+from live.retarget.analytic import leg_ratio  # noqa: E402
+from live.retarget.retargeter import AnalyticRetargeter, retarget_motion  # noqa: E402
+from live.core.skeleton import default_rest_joints  # noqa: E402
 from test_retarget_analytic import perturbed_body, synth_motion  # noqa: E402
 
 BVH_DIR = ROOT.parent / "shared" / "data" / "bvh"
@@ -57,9 +58,9 @@ def bench_speed(frames: int) -> None:
     med, p95 = _time_steps(lambda i: rt.step(rot[i], root[i]), range(frames))
     print(f"  {'rotations, foot lock + floor':32s} {med:6.3f} / {p95:6.3f}")
     try:
-        from live.skinning import pose_transforms, skin
+        from live.body.skinning import pose_transforms, skin
     except ImportError:
-        print("  (live/skinning.py not available: LBS not timed)")
+        print("  (live/body/skinning.py not available: LBS not timed)")
         return
     verts = 7000
     rest_v = (dst[rng.integers(0, 22, verts)] + rng.normal(scale=0.03, size=(verts, 3))).astype(np.float32)
@@ -70,7 +71,7 @@ def bench_speed(frames: int) -> None:
     w.flags.writeable = False
     rt = AnalyticRetargeter(src, dst)
 
-    def stage(j):  # as live/stages.py skins: the step's own global rotations and joints
+    def stage(j):  # as live/pipeline/stages.py skins: the step's own global rotations and joints
         _, _, posed = rt.step(j)
         skin(rest_v, w, pose_transforms(rt.last_globals, posed, dst)[None])
 
@@ -95,9 +96,9 @@ def bench_accuracy(clips: int) -> None:
         truth, _ = forward_kinematics(rot, root * leg_ratio(src, dst), dst)
         _report(f"synthetic #{seed} ({src[0, 1]:.2f} -> {dst[0, 1]:.2f} m pelvis)", src, dst, joints, truth, 30.0)
     try:
-        from live.rig_mapping import load_motion
+        from live.motion.rig_mapping import load_motion
     except ImportError:
-        print("  (live/rig_mapping.py not available: real clips skipped)")
+        print("  (live/motion/rig_mapping.py not available: real clips skipped)")
         return
     rng = np.random.default_rng(7)
     for path in sorted(BVH_DIR.glob("*.bvh"))[1 : 1 + clips]:

@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from live.retarget import AnalyticRetargeter  # noqa: E402
+from live.retarget.retargeter import AnalyticRetargeter  # noqa: E402
 from live.retarget.learned import LearnedRetargeter  # noqa: E402
 
 BVH = ROOT.parent / "shared" / "data" / "bvh"
@@ -53,11 +53,11 @@ def main() -> None:
     ap.add_argument("--source", default=None, help="source body preset (default: the first)")
     ap.add_argument("--target", default=None, help="target body preset (default: the last)")
     args = ap.parse_args()
-    from live.body import list_presets, load_body
-    from live.retarget.evaluate import _on_body, grounded
-    from live.retarget.skinning_field import SkinningFieldModel
-    from live.rig_mapping import load_motion, resample
-    from live.skinning import lbs, pose_transforms, skin
+    from live.body.library import list_presets, load_body
+    from live.evaluation.retarget import _on_body, grounded
+    from live.body.skinning_field import SkinningFieldModel
+    from live.motion.rig_mapping import load_motion, resample
+    from live.body.skinning import lbs, pose_transforms, skin
 
     names = sorted(list_presets())
     src = load_body(args.source or names[0])
@@ -80,7 +80,7 @@ def main() -> None:
     for name, rt in (("learned", learned), ("analytic", analytic)):
         rt.reset()
 
-        def stage(j, rt=rt):  # as live/stages.py skins: the step's own global rotations
+        def stage(j, rt=rt):  # as live/pipeline/stages.py skins: the step's own global rotations
             _, _, posed = rt.step(j)
             skin(tgt.vertices, tgt.weights, pose_transforms(rt.last_globals, posed, tgt.rest_joints)[None])
 

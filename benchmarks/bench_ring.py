@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from live.ring import CloudRing, ObjectRing, Ring  # noqa: E402
+from live.core.ring import CloudRing, ObjectRing, Ring  # noqa: E402
 
 
 def run_once(make_ring, payloads: list, n: int) -> dict:

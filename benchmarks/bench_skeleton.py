@@ -19,7 +19,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from live.frames import DepthFrame  # noqa: E402
+from live.core.frames import DepthFrame  # noqa: E402
 from models.skeleton.preprocess import PersonFinder, PreprocessConfig  # noqa: E402
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage  # noqa: E402
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
@@ -30,7 +30,7 @@ CLIP = ROOT.parent / "shared" / "data" / "bvh" / "cc_002_05.bvh"
 
 def render_frames(n: int, seed: int = 0) -> list[DepthFrame]:
     """n consecutive OAK-D frames of a performer 2.5 m from the camera, in a cluttered room."""
-    from live.body import list_presets, load_body
+    from live.body.library import list_presets, load_body
     from sim.skeleton_data import clip_motion, grounded_joints
     from sim.synth import SyntheticScene
 

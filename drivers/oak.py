@@ -22,10 +22,10 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from drivers.oak_settings import OakSettings, apply_stereo_config, oak_settings, stereo_config
-from live.errors import DeviceError, DeviceNotFoundError
-from live.frames import DepthFrame, MocapPacket
-from live.rotations import matrix_to_quat, quat_multiply
-from live.sources import StreamInfo
+from live.core.errors import DeviceError, DeviceNotFoundError
+from live.core.frames import DepthFrame, MocapPacket
+from live.core.rotations import matrix_to_quat, quat_multiply
+from live.core.sources import StreamInfo
 
 log = logging.getLogger(__name__)
 

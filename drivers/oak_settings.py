@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Any
 
-from live.errors import UserInputError
+from live.core.errors import UserInputError
 
 #: Stereo sensor modes of the OAK-D mono pair (OV9282): size -> highest frame rate.
 SENSOR_MODES: dict[tuple[int, int], float] = {(640, 400): 120.0, (1280, 720): 120.0, (1280, 800): 120.0}

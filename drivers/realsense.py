@@ -21,10 +21,10 @@ from typing import Any, Callable
 
 import numpy as np
 
-from live.depth import intrinsics_matrix
-from live.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError
-from live.frames import DepthFrame
-from live.sources import StreamInfo
+from live.core.depth import intrinsics_matrix
+from live.core.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError
+from live.core.frames import DepthFrame
+from live.core.sources import StreamInfo
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Serial motion-capture transport: a Source that reads a port and emits MocapPackets.
 
-Every read (whatever bytes arrived) becomes one ``live.frames.MocapPacket`` stamped with
+Every read (whatever bytes arrived) becomes one ``live.core.frames.MocapPacket`` stamped with
 time.monotonic_ns(): ``raw`` holds the bytes exactly as they arrived (what a session records)
 and the arrays hold the records the protocol parser completed with them. Replaying recorded raw
 chunks through ``decode_packet_bytes`` gives the same records. The port is opened with
@@ -22,9 +22,9 @@ import serial
 
 from drivers.text_lines import LineParser
 from drivers.xbus import XbusConfigurator, XbusParser
-from live.errors import DeviceError, UserInputError
-from live.frames import MocapPacket
-from live.sources import StreamInfo
+from live.core.errors import DeviceError, UserInputError
+from live.core.frames import MocapPacket
+from live.core.sources import StreamInfo
 
 PROTOCOLS = ("xbus", "lines")
 DEFAULT_BAUD = {"xbus": 115200, "lines": 115200}

@@ -13,7 +13,7 @@ Accepted forms (the ``kind`` of the resulting SourceSpec in brackets):
 
 The serial port may contain colons itself (``socket://host:1234``, ``rfc2217://host:2217``,
 ``COM3``), so a serial string is parsed from the right. ``open_camera_source`` turns an oak /
-realsense / realsense-bag spec into a driver object; the other kinds belong to live/sources.py.
+realsense / realsense-bag spec into a driver object; the other kinds belong to live/core/sources.py.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qsl
 
-from live.errors import UserInputError
+from live.core.errors import UserInputError
 
 KINDS = ("oak", "realsense", "realsense-bag", "serial", "replay", "folder", "sim")
 SERIAL_PROTOCOLS = ("xbus", "lines")

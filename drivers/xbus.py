@@ -31,8 +31,8 @@ from typing import Any, Iterable, Protocol
 
 import numpy as np
 
-from live.errors import DeviceError, FormatError
-from live.rotations import matrix_to_euler, matrix_to_quat, quat_to_matrix
+from live.core.errors import DeviceError, FormatError
+from live.core.rotations import matrix_to_euler, matrix_to_quat, quat_to_matrix
 
 PREAMBLE = 0xFA
 BID_MASTER = 0xFF

@@ -7,7 +7,7 @@ image tiles the body projects onto, then keeps the nearer of body and room per p
 hit over a union is the nearest of the hits).
 
 Output follows the DepthFrame convention: (H, W) uint16 millimetres, 0 = no data, OpenCV camera
-frame, pixel (u, v) looks along K^-1 (u, v, 1) as ``live.depth.depth_to_points`` assumes.
+frame, pixel (u, v) looks along K^-1 (u, v, 1) as ``live.core.depth.depth_to_points`` assumes.
 
 Noise model (a stereo or structured-light sensor measures disparity d = f b / z, in pixels):
 Gaussian disparity noise (so depth error grows as z^2 / (f b)), disparity quantisation to
@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from live.depth import intrinsics_matrix
-from live.errors import UserInputError
+from live.core.depth import intrinsics_matrix
+from live.core.errors import UserInputError
 from sim.room import Room
 
 _o3c = o3d.core

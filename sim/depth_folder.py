@@ -16,10 +16,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from live.depth import intrinsics_matrix
-from live.errors import FormatError, UserInputError
-from live.frames import DepthFrame
-from live.sources import StreamInfo
+from live.core.depth import intrinsics_matrix
+from live.core.errors import FormatError, UserInputError
+from live.core.frames import DepthFrame
+from live.core.sources import StreamInfo
 
 
 class DepthFolderSource:

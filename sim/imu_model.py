@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.kinematics import forward_kinematics
-from live.rotations import (
+from live.core.kinematics import forward_kinematics
+from live.core.rotations import (
     quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize, quat_rotate,
     quat_to_axis_angle,
 )
-from live.skeleton import NUM_JOINTS, default_rest_joints
+from live.core.skeleton import NUM_JOINTS, default_rest_joints
 
 GRAVITY = 9.81
 #: Earth field in the livecap world (x East, y Up, z South): 60 deg inclination, unit norm (a.u.).
@@ -65,7 +65,7 @@ class ImuTrack:
 
 @dataclass(frozen=True)
 class SimpleMotion:
-    """The fields of live.rig_mapping.Motion that the IMU simulation needs."""
+    """The fields of live.motion.rig_mapping.Motion that the IMU simulation needs."""
 
     fps: float
     rotations: np.ndarray

@@ -24,13 +24,13 @@ import numpy as np
 
 from drivers import xbus
 from drivers.text_lines import encode_line
-from live.frames import FrameResult, MocapPacket, SkeletonFrame
+from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
 from live.imu.calibration import pose_globals, yaw_of, yaw_quat
 from live.imu.layout import SuitLayout, load_suit_layout
 from live.imu.suit_skeleton import globals_to_locals
-from live.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
-from live.skeleton import JOINT_INDEX, NUM_JOINTS
-from live.sources import StreamInfo
+from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
+from live.core.skeleton import JOINT_INDEX, NUM_JOINTS
+from live.core.sources import StreamInfo
 from sim.imu_model import ImuNoise, ImuTrack, SimpleMotion, simulate_imus
 
 PROTOCOLS = ("xbus", "lines")
@@ -281,8 +281,8 @@ class MotionScene:
 
     @classmethod
     def of(cls, motion, rest_joints: np.ndarray | None = None) -> MotionScene:
-        from live.kinematics import forward_kinematics
-        from live.skeleton import pelvis_height
+        from live.core.kinematics import forward_kinematics
+        from live.core.skeleton import pelvis_height
 
         rest = np.asarray(motion.rest_joints if rest_joints is None else rest_joints, np.float64)
         ratio = pelvis_height(rest) / max(pelvis_height(motion.rest_joints), 1e-6)
@@ -300,8 +300,8 @@ def write_suit_session(path, scene, *, protocol: str = "xbus", seed: int = 0, fr
     """A session like ``livecap synth --imu`` writes, for scenes without a renderer: the suit's
     serial stream, ground truth, and (``depth=True``) a stand-in depth stream whose clouds are
     the ground-truth joints (camera = world). Frame k is at sim.synth's T0 + k / fps."""
-    from live.frames import DepthFrame
-    from live.session import SessionWriter
+    from live.core.frames import DepthFrame
+    from live.io.session import SessionWriter
 
     fps = float(fps or scene.motion.fps)
     t0 = int(_FIRST_FRAME_S * 1e9)
@@ -311,7 +311,7 @@ def write_suit_session(path, scene, *, protocol: str = "xbus", seed: int = 0, fr
     if depth:
         streams.insert(0, StreamInfo("cam", "depth", {"camera_to_world": np.eye(4).tolist(), "fps": fps,
                                                       "stand_in": "ground-truth joints"}))
-    from live.frames import GroundTruth
+    from live.core.frames import GroundTruth
 
     with SessionWriter(path, streams, start_wall_time_ns=0) as writer:
         for k in range(n):

@@ -12,9 +12,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from live.frames import MocapPacket
-from live.session import SessionReader
-from live.sources import StreamInfo
+from live.core.frames import MocapPacket
+from live.io.session import SessionReader
+from live.core.sources import StreamInfo
 
 
 class ReplaySource:

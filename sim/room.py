@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from live.errors import UserInputError
-from live.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
+from live.core.errors import UserInputError
+from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
 
 Mesh = tuple[np.ndarray, np.ndarray]
 

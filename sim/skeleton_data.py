@@ -29,11 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import UserInputError
-from live.skeleton import LEFT_RIGHT_SWAP, NUM_JOINTS
+from live.core.errors import UserInputError
+from live.core.skeleton import LEFT_RIGHT_SWAP, NUM_JOINTS
+from live.core import assets
 
-BVH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
-CACHE_DIR = Path(__file__).resolve().parents[1] / ".cache" / "skeleton_data"
+BVH_DIR = assets.bvh_dir()
+CACHE_DIR = assets.cache_dir("skeleton_data")
 VAL_SUBJECTS = frozenset({7, 8, 12, 16})
 #: Body presets never seen in training (chosen to span sizes; see docs/skeleton.md).
 VAL_BODY_COUNT = 4
@@ -92,7 +93,7 @@ ANNY_HOLD_OUT_MARGIN = 0.15
 def anny_phenotypes(n: int, seed: int = 0) -> list[str]:
     """``n`` random training phenotypes as ``anny:...`` body specs (deterministic per seed),
     none within ANNY_HOLD_OUT_MARGIN of a held-out preset's phenotype in all keys."""
-    from live.body import ANNY_KEYS, format_anny_spec, list_presets
+    from live.body.library import ANNY_KEYS, format_anny_spec, list_presets
     from models.train.export_bodies import LIBRARY
 
     held_out = [LIBRARY[name] for name in split_bodies(list_presets(), "val") if name in LIBRARY]
@@ -122,7 +123,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
     probability ``anny_share``, else a training preset."""
-    from live.body import list_presets
+    from live.body.library import list_presets
 
     if split not in SPLITS:
         raise UserInputError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")
@@ -153,7 +154,7 @@ _BODIES: dict[str, object] = {}
 
 def clip_motion(file: str):
     """The Motion of a clip of BVH_DIR (cached per process)."""
-    from live.rig_mapping import load_motion
+    from live.motion.rig_mapping import load_motion
 
     if file not in _MOTIONS:
         if len(_MOTIONS) > 200:  # bound worker memory (the library has ~120 clips)
@@ -164,7 +165,7 @@ def clip_motion(file: str):
 
 def body_by_name(name: str):
     """A body of the library (cached per process)."""
-    from live.body import load_body
+    from live.body.library import load_body
 
     if name not in _BODIES:
         _BODIES[name] = load_body(name)
@@ -234,7 +235,7 @@ def random_view(job: Job, rng: np.random.Generator):
 
 def run_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
-    from live.frames import DepthFrame
+    from live.core.frames import DepthFrame
     from models.skeleton.preprocess import PersonFinder, PreprocessConfig
     from sim.synth import SyntheticScene
 

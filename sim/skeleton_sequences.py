@@ -19,8 +19,8 @@ import json
 
 import numpy as np
 
-from live.errors import UserInputError
-from live.skeleton import NUM_JOINTS
+from live.core.errors import UserInputError
+from live.core.skeleton import NUM_JOINTS
 from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, anny_phenotypes, body_by_name,
                                build_bodies, clip_motion, grounded_joints, plan_jobs, random_view, run_jobs,
                                save_cache, visible_joints)
@@ -30,7 +30,7 @@ SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleare
 
 
 def _motion_at_fps(file: str):
-    from live.rig_mapping import resample
+    from live.motion.rig_mapping import resample
 
     return resample(clip_motion(file), SEQUENCE_FPS)
 
@@ -38,7 +38,7 @@ def _motion_at_fps(file: str):
 def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's consecutive frames; arrays with a leading frame axis (F = SEQUENCE_FRAMES,
     frames past the end of a short clip are marked not found)."""
-    from live.frames import DepthFrame
+    from live.core.frames import DepthFrame
     from models.skeleton.preprocess import PersonFinder, PreprocessConfig
     from sim.synth import SyntheticScene
 

@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from live.body import Body, load_body, save_body
-from live.errors import UserInputError
-from live.frames import DepthFrame, GroundTruth
-from live.kinematics import forward_kinematics
-from live.rig_mapping import Motion, load_motion, resample, trim_bind_pose
-from live.skeleton import JOINT_INDEX, pelvis_height
-from live.skinning import lbs
-from live.sources import StreamInfo
+from live.body.library import Body, load_body, save_body
+from live.core.errors import UserInputError
+from live.core.frames import DepthFrame, GroundTruth
+from live.core.kinematics import forward_kinematics
+from live.motion.rig_mapping import Motion, load_motion, resample, trim_bind_pose
+from live.core.skeleton import JOINT_INDEX, pelvis_height
+from live.body.skinning import lbs
+from live.core.sources import StreamInfo
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
 from sim.room import Room
 
@@ -142,7 +142,7 @@ class SyntheticScene:
 
 
 def body_npz_bytes(body: Body) -> bytes:
-    """The body file (CONVENTIONS.md contract) as bytes, written by live.body.save_body."""
+    """The body file (CONVENTIONS.md contract) as bytes, written by live.body.library.save_body."""
     buf = io.BytesIO()
     save_body(buf, body)
     return buf.getvalue()
@@ -165,7 +165,7 @@ class SynthOptions:
 
 def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int], None] | None = None) -> dict:
     """Write a synthetic session; returns a summary dict."""
-    from live.session import SessionWriter
+    from live.io.session import SessionWriter
 
     motion = trim_bind_pose(load_motion(opts.motion))  # a performer starts in motion, not in a bind pose
     body = load_body(opts.body)

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import FormatError, UserInputError
+from live.core.errors import FormatError, UserInputError
 
-body_mod = pytest.importorskip("live.body")
-pytest.importorskip("live.skinning")
+body_mod = pytest.importorskip("live.body.library")
+pytest.importorskip("live.body.skinning")
 
-from live.avatar import fit_skeleton, load_avatar, normalise_figure, skeleton_template  # noqa: E402
-from live.retarget.skinning_field import DEFAULT_MODEL  # noqa: E402
+from live.body.avatar import fit_skeleton, load_avatar, normalise_figure, skeleton_template  # noqa: E402
+from live.body.skinning_field import DEFAULT_MODEL  # noqa: E402
 
 needs_field = pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="no committed skinning_field.onnx")
 
@@ -64,9 +64,9 @@ def test_mesh_and_cloud_avatars(tmp_path, suffix, cloud, unit):
     """A held-out body written as an OBJ mesh in centimetres, or a PLY point cloud, moved away from
     the origin: the avatar is back in metres on the floor, with a close skeleton and weights that
     pose it close to the true skinning."""
-    from live.metrics import mpvd
-    from live.rotations import quat_from_axis_angle
-    from live.skinning import lbs
+    from live.core.metrics import mpvd
+    from live.core.rotations import quat_from_axis_angle
+    from live.body.skinning import lbs
 
     body = body_mod.load_body(_held_out())
     offset = np.array([0.5, 0.3, -1.0])

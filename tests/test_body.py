@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.body import BODIES_DIR, Body, aliases, list_presets, load_body, parse_anny_spec, save_body
-from live.errors import FormatError, UserInputError
-from live.kinematics import forward_kinematics, global_rotations
-from live.rotations import quat_identity, quat_normalize, quat_to_matrix
-from live.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
-from live.skinning import lbs, skinning_transforms
+from live.body.library import BODIES_DIR, Body, aliases, list_presets, load_body, parse_anny_spec, save_body
+from live.core.errors import FormatError, UserInputError
+from live.core.kinematics import forward_kinematics, global_rotations
+from live.core.rotations import quat_identity, quat_normalize, quat_to_matrix
+from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
+from live.body.skinning import lbs, skinning_transforms
 
 J = JOINT_INDEX
 ROOT = Path(__file__).resolve().parent.parent

@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.bvh import (
+from live.io.bvh import (
     UNIT_SCALES, bvh_forward_kinematics, clip_from_rotations, format_bvh, guess_scale,
     parse_bvh, read_bvh, rest_positions, write_bvh, write_canonical_bvh,
 )
-from live.errors import FormatError
-from live.kinematics import forward_kinematics
-from live.rotations import quat_from_axis_angle, quat_normalize
-from live.skeleton import JOINT_NAMES, default_rest_joints
+from live.core.errors import FormatError
+from live.core.kinematics import forward_kinematics
+from live.core.rotations import quat_from_axis_angle, quat_normalize
+from live.core.skeleton import JOINT_NAMES, default_rest_joints
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 needs_data = pytest.mark.skipif(not (DATA / "index.csv").exists(), reason="../shared/data/bvh missing")

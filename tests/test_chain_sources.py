@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-body_mod = pytest.importorskip("live.body")
+body_mod = pytest.importorskip("live.body.library")
 
-from live.kinematics import forward_kinematics  # noqa: E402
-from live.skeleton import pelvis_height  # noqa: E402
+from live.core.kinematics import forward_kinematics  # noqa: E402
+from live.core.skeleton import pelvis_height  # noqa: E402
 from models.train.chain_sources import plan_runs, run_chain  # noqa: E402
 
 CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh" / "cc_002_05.bvh"  # a training subject
@@ -21,8 +21,8 @@ def data():
     """One clip in load_clips' layout (grounded, 30 fps)."""
     if not CLIP.is_file():
         pytest.skip("no CMU clips in ../shared")
-    from live.retarget.evaluate import grounded
-    from live.rig_mapping import load_motion, resample
+    from live.evaluation.retarget import grounded
+    from live.motion.rig_mapping import load_motion, resample
 
     m = grounded(resample(load_motion(CLIP), 30.0))
     return {"rotations": m.rotations.astype(np.float32), "root": m.root.astype(np.float32),
@@ -45,7 +45,7 @@ def test_chain_joints_lie_in_the_clips_own_coordinates(data):
     """The stage's joints are compared with the truth frame by frame in training: they must be
     the same motion, on the same body, in the same coordinates (a wrong shift or scale would
     teach the retargeter an offset)."""
-    from live.body import mean_rest_template
+    from live.body.library import mean_rest_template
     from sim.skeleton_data import split_bodies
 
     run = plan_runs(data, np.array([0]), ["heavy_male"], 1, 45, seed=0)[0]

@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from live.cli import main
-from live.frames import DepthFrame
-from live.session import SessionWriter
-from live.sources import StreamInfo
+from live.app.cli import main
+from live.core.frames import DepthFrame
+from live.io.session import SessionWriter
+from live.core.sources import StreamInfo
 
 ROOT = Path(__file__).resolve().parent.parent
 K = np.array([[200.0, 0, 32], [0, 200.0, 20], [0, 0, 1]])
@@ -94,13 +94,13 @@ def test_user_mistakes_are_one_line(argv, capsys):
 def test_every_command_has_help():
     for cmd in ["demo", "replay", "record", "run", "export", "info", "devices", "synth", "render", "eval",
                 "calibrate"]:
-        out = subprocess.run([sys.executable, "-m", "live.cli", cmd, "--help"], cwd=ROOT,
+        out = subprocess.run([sys.executable, "-m", "live.app.cli", cmd, "--help"], cwd=ROOT,
                              capture_output=True, text=True, timeout=60)
         assert out.returncode == 0 and "usage" in out.stdout
 
 
 def test_importing_runtime_packages_never_imports_torch():
-    code = ("import sys, live, live.cli, live.pipeline, live.session, drivers, models, sim, sim.replay;"
+    code = ("import sys, live, live.app.cli, live.pipeline.runner, live.io.session, drivers, models, sim, sim.replay;"
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "False", out.stderr

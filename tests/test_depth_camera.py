@@ -7,9 +7,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from live.depth import depth_to_points, points_to_world
-from live.errors import UserInputError
-from live.skeleton import default_rest_joints
+from live.core.depth import depth_to_points, points_to_world
+from live.core.errors import UserInputError
+from live.core.skeleton import default_rest_joints
 from sim.depth_camera import (
     PRESETS,
     NoiseModel,
@@ -42,7 +42,7 @@ def wall(z_front: float, half: float = 0.5, y: float = 1.0):
 def body():
     """The default body posed at rest if the body library is available, else capsules."""
     try:
-        from live.body import load_body
+        from live.body.library import load_body
 
         b = load_body("default")
         return np.asarray(b.vertices, np.float32), np.asarray(b.faces, np.int32)
@@ -287,7 +287,7 @@ def test_back_face_culling_is_safe(body):
 
 
 def test_docs_figure(tmp_path, shared_bvh):
-    from sim.figures import virtual_depth_figure
+    from research.figures import virtual_depth_figure
 
     out = virtual_depth_figure(tmp_path / "fig.png", shared_bvh / "cc_002_01.bvh", frame=10)
     img = cv2.imread(str(out))

@@ -10,17 +10,17 @@ import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from live.depth import points_to_world
-from live.errors import FormatError, UserInputError
-from live.foxglove import (MAP_TO_WORLD, SCHEMAS, avatar_offset_for, decode_point_cloud, export_foxglove,
+from live.core.depth import points_to_world
+from live.core.errors import FormatError, UserInputError
+from live.io.foxglove import (MAP_TO_WORLD, SCHEMAS, avatar_offset_for, decode_point_cloud, export_foxglove,
                            load_avatar_track, point_cloud_message, Track)
-from live.frames import AvatarPose, DepthFrame, FrameResult, GroundTruth, MocapPacket, SkeletonFrame
-from live.kinematics import forward_kinematics
-from live.results import ResultsWriter
-from live.rotations import quat_from_axis_angle, quat_to_matrix
-from live.session import SessionReader, SessionWriter
-from live.skeleton import BONES, NUM_JOINTS, default_rest_joints
-from live.sources import StreamInfo
+from live.core.frames import AvatarPose, DepthFrame, FrameResult, GroundTruth, MocapPacket, SkeletonFrame
+from live.core.kinematics import forward_kinematics
+from live.io.results import ResultsWriter
+from live.core.rotations import quat_from_axis_angle, quat_to_matrix
+from live.io.session import SessionReader, SessionWriter
+from live.core.skeleton import BONES, NUM_JOINTS, default_rest_joints
+from live.core.sources import StreamInfo
 
 T = 12
 T0 = 5_000_000_000

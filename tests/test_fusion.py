@@ -4,15 +4,15 @@ IMU-only, survives occlusions, learns the performer's proportions."""
 import numpy as np
 import pytest
 
-from live.errors import UserInputError
-from live.frames import FrameResult, SkeletonFrame
+from live.core.errors import UserInputError
+from live.core.frames import FrameResult, SkeletonFrame
 from live.imu.calibration import yaw_of
 from live.imu.fusion import yaw_between
 from live.imu.stage import FusionStage, build_stages
-from live.pipeline import Pipeline
-from live.rig_mapping import load_motion, resample
-from live.session import SessionReader
-from live.skeleton import JOINT_INDEX, bone_lengths, default_rest_joints
+from live.pipeline.runner import Pipeline
+from live.motion.rig_mapping import load_motion, resample
+from live.io.session import SessionReader
+from live.core.skeleton import JOINT_INDEX, bone_lengths, default_rest_joints
 from sim.imu_stream import MotionScene, NoisySkeletonStage, write_suit_session
 from sim.replay import ReplaySource
 

@@ -14,10 +14,10 @@ import serial
 from drivers.layouts import DEFAULT_LAYOUT, load_layout, parse_layout
 from drivers.serial_source import SerialSource, decode_packet_bytes
 from drivers.xbus import XbusConfigurator, XbusParser
-from live.errors import DeviceError, FormatError
-from live.kinematics import global_rotations
-from live.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
-from live.skeleton import JOINT_INDEX
+from live.core.errors import DeviceError, FormatError
+from live.core.kinematics import global_rotations
+from live.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
+from live.core.skeleton import JOINT_INDEX
 from sim.imu_device import DEVICE_ID_BASE, SimulatedSuit
 from sim.imu_model import GRAVITY, ImuNoise, SimpleMotion, random_smooth_motion, simulate_imus
 
@@ -225,7 +225,7 @@ def test_real_cmu_clip_through_the_pty():
     clip = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "bvh" / "cc_001_01.bvh"
     if not clip.exists():
         pytest.skip("the shared CMU clips are not beside the checkout")
-    from live.rig_mapping import load_motion
+    from live.motion.rig_mapping import load_motion
 
     m = load_motion(clip)
     motion = SimpleMotion(fps=m.fps, rotations=m.rotations[:90], root=m.root[:90], rest_joints=m.rest_joints)

@@ -6,18 +6,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import FormatError, UserInputError
-from live.frames import MocapPacket
+from live.core.errors import FormatError, UserInputError
+from live.core.frames import MocapPacket
 from live.imu.calibration import Calibration, CalibrationCollector, calibrate, pose_globals, yaw_quat
 from live.imu.layout import load_suit_layout
 from live.imu.stage import ImuSkeletonStage, build_stages
 from live.imu.suit_skeleton import ChainPlan, fill_globals, globals_to_locals, joints_from_globals
-from live.kinematics import forward_kinematics, global_rotations
-from live.pipeline import Pipeline
-from live.rig_mapping import load_motion, resample
-from live.rotations import quat_angle, quat_conjugate, quat_multiply
-from live.session import SessionReader
-from live.skeleton import JOINT_INDEX, default_rest_joints
+from live.core.kinematics import forward_kinematics, global_rotations
+from live.pipeline.runner import Pipeline
+from live.motion.rig_mapping import load_motion, resample
+from live.core.rotations import quat_angle, quat_conjugate, quat_multiply
+from live.io.session import SessionReader
+from live.core.skeleton import JOINT_INDEX, default_rest_joints
 from sim.imu_model import random_rotations
 from sim.imu_stream import MotionScene, write_suit_session
 from sim.replay import ReplaySource
@@ -71,7 +71,7 @@ def test_calibration_recovers_segment_rotations_exactly(pose):
 def test_calibration_tolerates_mounting_errors_by_averaging_the_heading():
     layout = load_suit_layout(None)
     rng = np.random.default_rng(1)
-    from live.rotations import quat_from_axis_angle
+    from live.core.rotations import quat_from_axis_angle
 
     M = quat_from_axis_angle(rng.normal(0, np.radians(10), (layout.size, 3)))
     A = yaw_quat(-2.0)

@@ -1,11 +1,11 @@
-"""live.metrics against hand-computed cases and the invariances each metric promises."""
+"""live.core.metrics against hand-computed cases and the invariances each metric promises."""
 
 import numpy as np
 import pytest
 
-from live import metrics
-from live.errors import UserInputError
-from live.rotations import quat_from_axis_angle, quat_to_matrix
+from live.core import metrics
+from live.core.errors import UserInputError
+from live.core.rotations import quat_from_axis_angle, quat_to_matrix
 
 
 def _random_points(seed: int, t: int = 5, n: int = 22) -> np.ndarray:

@@ -5,7 +5,7 @@ import pytest
 
 onnx = pytest.importorskip("onnx")
 
-from live.skeleton import LEFT_RIGHT_SWAP  # noqa: E402
+from live.core.skeleton import LEFT_RIGHT_SWAP  # noqa: E402
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor  # noqa: E402
 from models.train.mirror_average import is_wrapped, wrap_with_mirror_average  # noqa: E402
 

@@ -29,11 +29,11 @@ from drivers.oak import (  # noqa: E402
     timedelta_to_ns,
 )
 from drivers.oak_settings import PRESETS, OakSettings, apply_stereo_config, oak_settings, stereo_config  # noqa: E402
-from live.depth import depth_to_points  # noqa: E402
-from live.errors import DeviceError, DeviceNotFoundError, UserInputError  # noqa: E402
-from live.frames import DepthFrame, MocapPacket  # noqa: E402
-from live.rotations import quat_to_matrix  # noqa: E402
-from live.sources import Source, StreamInfo  # noqa: E402
+from live.core.depth import depth_to_points  # noqa: E402
+from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError  # noqa: E402
+from live.core.frames import DepthFrame, MocapPacket  # noqa: E402
+from live.core.rotations import quat_to_matrix  # noqa: E402
+from live.core.sources import Source, StreamInfo  # noqa: E402
 
 
 # ---------------------------------------------------------------- settings

@@ -6,10 +6,10 @@ import time
 import numpy as np
 import pytest
 
-from live.errors import DeviceError
-from live.frames import DepthFrame, GroundTruth, MocapPacket
-from live.pipeline import Pipeline
-from live.sources import StreamInfo
+from live.core.errors import DeviceError
+from live.core.frames import DepthFrame, GroundTruth, MocapPacket
+from live.pipeline.runner import Pipeline
+from live.core.sources import StreamInfo
 
 
 class ListSource:

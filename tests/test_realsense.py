@@ -17,9 +17,9 @@ from drivers.realsense import (  # noqa: E402
     intrinsics_from_metadata,
     list_realsense_devices,
 )
-from live.depth import depth_to_points  # noqa: E402
-from live.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError  # noqa: E402
-from live.sources import Source  # noqa: E402
+from live.core.depth import depth_to_points  # noqa: E402
+from live.core.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError  # noqa: E402
+from live.core.sources import Source  # noqa: E402
 
 W, H = 64, 48
 

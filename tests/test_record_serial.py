@@ -4,8 +4,8 @@ decoded IMU file with exact values."""
 
 import numpy as np
 
-from live.cli import main
-from live.rotations import quat_canonical
+from live.app.cli import main
+from live.core.rotations import quat_canonical
 from sim.imu_device import SimulatedSuit
 from sim.imu_model import random_smooth_motion
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from live.cli import main
+from live.app.cli import main
 from sim.synth import SynthOptions, synthesize
 
 

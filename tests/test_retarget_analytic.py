@@ -5,27 +5,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import UserInputError
-from live.frames import GroundTruth, SkeletonFrame
-from live.kinematics import forward_kinematics
-from live.metrics import mpjpe
-from live.retarget import (
-    AnalyticRetargeter,
-    ContactDetector,
-    detect_contacts,
-    estimate_rest_joints,
-    leg_ratio,
-    local_rotations_from_joints,
-    retarget,
-    retarget_motion,
-    two_bone_ik,
-)
+from live.core.errors import UserInputError
+from live.core.frames import GroundTruth, SkeletonFrame
+from live.core.kinematics import forward_kinematics
+from live.core.metrics import mpjpe
+from live.retarget.analytic import estimate_rest_joints, leg_ratio, local_rotations_from_joints, retarget
+from live.retarget.contacts import ContactDetector, detect_contacts
+from live.retarget.ik import two_bone_ik
+from live.retarget.retargeter import AnalyticRetargeter, retarget_motion
 from live.retarget.analytic import LIMBS, RestInfo, solve_globals
 from live.retarget.contacts import FEET
-from live.rotations import quat_angle, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
-from live.skeleton import BONES, JOINT_INDEX, NUM_JOINTS, default_rest_joints, rest_offsets
+from live.core.rotations import quat_angle, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
+from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS, default_rest_joints, rest_offsets
+from live.core import assets
 
-BVH_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
+BVH_DIR = assets.bvh_dir()
 FPS = 30.0
 
 
@@ -334,7 +328,7 @@ def test_estimate_rest_joints_from_posed_motion():
 
 
 def test_real_clip_round_trip():
-    rig_mapping = pytest.importorskip("live.rig_mapping")
+    rig_mapping = pytest.importorskip("live.motion.rig_mapping")
     clips = sorted(BVH_DIR.glob("*.bvh"))
     if not clips:
         pytest.skip("no BVH clips in ../shared/data/bvh")
@@ -353,8 +347,8 @@ def test_performer_rest_estimate_with_library_template():
     """A library body's T-pose estimated from its posed joints with the other bodies' mean
     T-pose as bone-direction template keeps its pelvis height within 3 % (the straight-leg
     default template makes it several per cent taller)."""
-    from live.body import list_presets, load_body, mean_rest_template
-    from live.skeleton import pelvis_height
+    from live.body.library import list_presets, load_body, mean_rest_template
+    from live.core.skeleton import pelvis_height
 
     names = list_presets()
     if len(names) < 3:
@@ -371,7 +365,7 @@ def test_performer_rest_estimate_with_library_template():
 
 def test_joints_from_globals_is_forward_kinematics():
     from live.retarget.analytic import fk_matrices, joints_from_globals
-    from live.rotations import quat_from_axis_angle, quat_to_matrix
+    from live.core.rotations import quat_from_axis_angle, quat_to_matrix
 
     rng = np.random.default_rng(8)
     rest = default_rest_joints(1.6)

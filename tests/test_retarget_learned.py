@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import ModelError, UserInputError
-from live.frames import GroundTruth, SkeletonFrame
-from live.kinematics import forward_kinematics
-from live.metrics import mpjpe
+from live.core.errors import ModelError, UserInputError
+from live.core.frames import GroundTruth, SkeletonFrame
+from live.core.kinematics import forward_kinematics
+from live.core.metrics import mpjpe
 from live.retarget.learned import DEFAULT_MODEL, LearnedRetargeter, learned_retarget_motion
-from live.rotations import quat_from_axis_angle
-from live.skeleton import default_rest_joints
+from live.core.rotations import quat_from_axis_angle
+from live.core.skeleton import default_rest_joints
 
 ROOT = Path(__file__).resolve().parents[1]
 BVH = ROOT.parent / "shared" / "data" / "bvh"
@@ -109,8 +109,8 @@ def test_missing_model_is_a_model_error(tmp_path):
 @pytest.mark.skipif(not DEFAULT_MODEL.is_file(), reason="no committed retarget.onnx")
 def test_committed_model_on_held_out_clip():
     """The committed network on a held-out CMU subject (12) moved to a much smaller body."""
-    from live.retarget.evaluate import grounded
-    from live.rig_mapping import load_motion, resample
+    from live.evaluation.retarget import grounded
+    from live.motion.rig_mapping import load_motion, resample
 
     clip = BVH / "mb_12_01.bvh"
     if not clip.is_file():
@@ -136,8 +136,8 @@ def test_committed_model_on_held_out_clip():
 def test_step_globals_skin_like_the_quaternions(kind):
     """The live stage skins with each step's own global rotations: the same mesh as LBS from
     the step's quaternions and root."""
-    from live.retarget import AnalyticRetargeter
-    from live.skinning import lbs, pose_transforms, skin
+    from live.retarget.retargeter import AnalyticRetargeter
+    from live.body.skinning import lbs, pose_transforms, skin
 
     rng = np.random.default_rng(5)
     src = default_rest_joints()
@@ -161,7 +161,7 @@ def test_learned_with_foot_placement_holds_sliding_feet_above_the_floor():
     a standing source whose pelvis sways (its feet slide with it) gives avatar feet that stay
     put and never go below the floor."""
     from live.retarget.contacts import FEET
-    from live.skeleton import NUM_JOINTS
+    from live.core.skeleton import NUM_JOINTS
 
     src = default_rest_joints()
     dst = default_rest_joints(1.4)

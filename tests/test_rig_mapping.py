@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.bvh import (BvhSkeleton, bvh_forward_kinematics, clip_from_rotations, format_bvh,
+from live.io.bvh import (BvhSkeleton, bvh_forward_kinematics, clip_from_rotations, format_bvh,
                       parse_bvh, read_bvh, write_canonical_bvh)
-from live.errors import FormatError
-from live.kinematics import forward_kinematics
-from live.rig_mapping import (BIND_POSE_JUMP_MPS, TABLES, Motion, auto_mapping, detect_rig, load_motion, map_clip,
+from live.core.errors import FormatError
+from live.core.kinematics import forward_kinematics
+from live.motion.rig_mapping import (BIND_POSE_JUMP_MPS, TABLES, Motion, auto_mapping, detect_rig, load_motion, map_clip,
                               resample, source_joints, split_name, trim_bind_pose)
-from live.rotations import (matrix_to_quat, quat_angle, quat_conjugate, quat_from_axis_angle,
+from live.core.rotations import (matrix_to_quat, quat_angle, quat_conjugate, quat_from_axis_angle,
                             quat_multiply, quat_to_matrix)
-from live.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 needs_data = pytest.mark.skipif(not (DATA / "index.csv").exists(), reason="../shared/data/bvh missing")
@@ -143,7 +143,7 @@ def _canonical_as_rig(rest: np.ndarray, names: dict[str, str], arm_drop: float) 
 
 def _arm_rest_rotations(drop: float):
     """Least-swing rotations lowering each upper arm by ``drop`` (an A-pose without twist)."""
-    from live.rotations import quat_between, quat_to_matrix
+    from live.core.rotations import quat_between, quat_to_matrix
     rest = default_rest_joints()
     out = []
     for side, sign in (("left", -1), ("right", 1)):
@@ -244,7 +244,7 @@ def test_resample(motions):
 
 def test_unknown_rig_name_is_a_format_error():
     rest = default_rest_joints()
-    from live.bvh import canonical_skeleton
+    from live.io.bvh import canonical_skeleton
     sk = canonical_skeleton(rest)
     clip = clip_from_rotations(sk, 1 / 30, np.tile([1.0, 0, 0, 0], (2, 22, 1)), np.zeros((2, 3)))
     with pytest.raises(FormatError, match="unknown rig"):
@@ -356,6 +356,6 @@ def test_shared_clips_lose_their_bind_pose_only():
     assert speed.max() < BIND_POSE_JUMP_MPS / 4
     cc = load_motion(DATA / "cc_002_05.bvh")
     assert trim_bind_pose(cc) is cc
-    from live.retarget.evaluate import prepare_motion  # evaluation plays clips as performances
+    from live.evaluation.retarget import prepare_motion  # evaluation plays clips as performances
 
     assert prepare_motion(DATA / "mb_12_01.bvh", fps=mb.fps).num_frames == cut.num_frames

@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
-from live.errors import LivecapError
-from live.ring import CloudRing, Item, ObjectRing, Reader, Ring, RingClosedError, RingFullError
+from live.core.errors import LivecapError
+from live.core.ring import CloudRing, Item, ObjectRing, Reader, Ring, RingClosedError, RingFullError
 
 HYPO = settings(
     max_examples=150,

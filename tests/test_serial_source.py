@@ -12,10 +12,10 @@ import pytest
 from drivers.serial_source import SerialSource, decode_packet_bytes, records_to_arrays
 from drivers.text_lines import encode_line
 from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2
-from live.errors import DeviceError, UserInputError
-from live.frames import MocapPacket
-from live.rotations import quat_normalize
-from live.sources import Source
+from live.core.errors import DeviceError, UserInputError
+from live.core.frames import MocapPacket
+from live.core.rotations import quat_normalize
+from live.core.sources import Source
 
 WAIT = 10.0  # generous upper bound for events; tests normally finish far sooner
 

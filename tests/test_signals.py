@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_signal_stops_run_and_closes_the_recording(tmp_path, shared_bvh, sig):
     session = tmp_path / "live.mcap"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "live.cli", "run", "--source", f"sim:{shared_bvh / 'cc_002_01.bvh'}?loop=1",
+        [sys.executable, "-m", "live.app.cli", "run", "--source", f"sim:{shared_bvh / 'cc_002_01.bvh'}?loop=1",
          "--record", str(session), "--out", str(tmp_path / "out"), "--quiet"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

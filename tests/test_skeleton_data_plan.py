@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.body import ANNY_KEYS, format_anny_spec, list_presets, parse_anny_spec
+from live.body.library import ANNY_KEYS, format_anny_spec, list_presets, parse_anny_spec
 from models.train.export_bodies import LIBRARY
 from sim.skeleton_data import (ANNY_HOLD_OUT_MARGIN, ANNY_RANGES, VAL_SUBJECTS, anny_phenotypes, plan_jobs,
                                split_bodies)

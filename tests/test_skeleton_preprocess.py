@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from live.frames import DepthFrame
-from live.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
+from live.core.frames import DepthFrame
+from live.core.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import R2_STEP, R2_VISITS, BackgroundModel, PersonFinder, PreprocessConfig, r2_grid_order
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import ModelError
-from live.frames import DepthFrame, FrameResult
-from live.metrics import mpjpe
+from live.core.errors import ModelError
+from live.core.frames import DepthFrame, FrameResult
+from live.core.metrics import mpjpe
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage
 
 BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
@@ -129,7 +129,7 @@ def test_missing_model_is_a_model_error(tmp_path):
 
 
 def test_evaluate_sessions_compares_both_models(tmp_path):
-    from models.skeleton.evaluate import evaluate_sessions, format_report
+    from live.evaluation.skeleton import evaluate_sessions, format_report
     from sim.synth import CameraPlacement, SynthOptions, synthesize
 
     session = tmp_path / "s.mcap"
@@ -148,7 +148,7 @@ def test_evaluate_sessions_compares_both_models(tmp_path):
 
 
 def _held_out_body() -> str:
-    from live.body import list_presets
+    from live.body.library import list_presets
     from sim.skeleton_data import split_bodies
 
     return split_bodies(list_presets(), "val")[0]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from live.errors import ModelError
+from live.core.errors import ModelError
 from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL, feature_size, sample_history
 
 
@@ -135,7 +135,7 @@ def test_online_model_estimates_the_newest_frame():
 
 
 def test_unknown_lag_is_a_user_error():
-    from live.errors import UserInputError
+    from live.core.errors import UserInputError
     from models.skeleton.runtime import SkeletonStage
 
     with pytest.raises(UserInputError, match="lag 7"):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
-pytest.importorskip("live.body")
+pytest.importorskip("live.body.library")
 
 
 def test_quick_training_exports_models_and_cards(tmp_path):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from live.errors import ModelError, UserInputError
-from live.retarget.skinning_field import DEFAULT_MODEL, SkinningFieldModel
-from live.skeleton import default_rest_joints
+from live.core.errors import ModelError, UserInputError
+from live.body.skinning_field import DEFAULT_MODEL, SkinningFieldModel
+from live.core.skeleton import default_rest_joints
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +56,10 @@ def test_missing_model(tmp_path):
 def test_committed_field_on_held_out_body():
     """On a held-out preset: mostly the right dominant bone, and LBS with the predicted weights
     close to LBS with the true ones on a bent pose."""
-    from live.body import list_presets, load_body
-    from live.metrics import mpvd
-    from live.rotations import quat_from_axis_angle
-    from live.skinning import lbs
+    from live.body.library import list_presets, load_body
+    from live.core.metrics import mpvd
+    from live.core.rotations import quat_from_axis_angle
+    from live.body.skinning import lbs
     from sim.skeleton_data import split_bodies
 
     body = load_body(split_bodies(list_presets(), "val")[0])

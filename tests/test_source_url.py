@@ -3,7 +3,7 @@
 import pytest
 
 from drivers.source_url import SourceSpec, format_source, open_camera_source, parse_source
-from live.errors import UserInputError
+from live.core.errors import UserInputError
 
 
 @pytest.mark.parametrize(

@@ -3,10 +3,10 @@ same bytes, and the session replays like a recorded one."""
 
 import numpy as np
 
-from live.body import load_body
-from live.rig_mapping import load_motion, resample
-from live.session import SessionReader
-from live.skeleton import JOINT_INDEX as J
+from live.body.library import load_body
+from live.motion.rig_mapping import load_motion, resample
+from live.io.session import SessionReader
+from live.core.skeleton import JOINT_INDEX as J
 from sim.synth import CameraPlacement, SynthOptions, SyntheticScene, synthesize
 
 FLEXIONS = [("left_hip", "left_knee", "left_ankle"), ("right_hip", "right_knee", "right_ankle"),
@@ -37,7 +37,7 @@ def test_ground_truth_keeps_joint_angles_of_every_clip(shared_bvh):
 def test_rendered_points_lie_on_the_body(shared_bvh):
     import open3d as o3d
 
-    from live.depth import depth_to_points, points_to_world
+    from live.core.depth import depth_to_points, points_to_world
     from sim.depth_camera import NoiseModel
 
     scene = SyntheticScene.build(load_motion(shared_bvh / "cc_002_01.bvh"), load_body("performer"),

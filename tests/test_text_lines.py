@@ -11,7 +11,7 @@ import pytest
 
 from drivers.text_lines import LineParser, encode_line, line_checksum
 from drivers.xbus import FRAME_TO_WORLD
-from live.rotations import quat_normalize
+from live.core.rotations import quat_normalize
 
 
 def test_exact_bytes_world_frame():

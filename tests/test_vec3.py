@@ -1,12 +1,12 @@
-"""The plain-float 3-vector / 3x3 helpers of the per-frame retargeter agree with live.rotations."""
+"""The plain-float 3-vector / 3x3 helpers of the per-frame retargeter agree with live.core.rotations."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from live.retarget import vec3 as v3
-from live.rotations import quat_between, quat_from_axis_angle, quat_to_matrix
+from live.core import vec3 as v3
+from live.core.rotations import quat_between, quat_from_axis_angle, quat_to_matrix
 
 RNG = np.random.default_rng(7)
 

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.errors import UserInputError
-from live.frames import AvatarPose, DepthFrame, FrameResult, SkeletonFrame
-from live.kinematics import forward_kinematics
+from live.core.errors import UserInputError
+from live.core.frames import AvatarPose, DepthFrame, FrameResult, SkeletonFrame
+from live.core.kinematics import forward_kinematics
 from live.outputs.render import bone_mesh
-from live.rotations import quat_from_axis_angle
-from live.skeleton import default_rest_joints
+from live.core.rotations import quat_from_axis_angle
+from live.core.skeleton import default_rest_joints
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
 

@@ -11,9 +11,9 @@ import pytest
 from pythonosc.dispatcher import Dispatcher
 from pythonosc.osc_server import BlockingOSCUDPServer
 
-from live.errors import UserInputError
-from live.frames import AvatarPose, FrameResult, SkeletonFrame
-from live.kinematics import forward_kinematics
+from live.core.errors import UserInputError
+from live.core.frames import AvatarPose, FrameResult, SkeletonFrame
+from live.core.kinematics import forward_kinematics
 from live.outputs.unity import (
     JOINT_TO_UNITY_BONE,
     UNITY_BONES,
@@ -23,8 +23,8 @@ from live.outputs.unity import (
     quat_to_unity,
 )
 from live.outputs.vmc import VmcSink, encode_bundle, pose_from_vmc, vmc_messages
-from live.rotations import quat_from_axis_angle, quat_normalize, quat_to_matrix
-from live.skeleton import JOINT_INDEX, PARENTS, default_rest_joints
+from live.core.rotations import quat_from_axis_angle, quat_normalize, quat_to_matrix
+from live.core.skeleton import JOINT_INDEX, PARENTS, default_rest_joints
 
 M = np.diag([-1.0, 1.0, 1.0])
 
@@ -100,7 +100,7 @@ def test_bundle_layout_follows_the_vmc_spec():
 
 def test_receiver_composes_a_rotated_root_with_the_hips():
     """Senders that move the root object (not only the Hips) are rebuilt to the same pose."""
-    from live.rotations import quat_conjugate, quat_multiply, quat_rotate
+    from live.core.rotations import quat_conjugate, quat_multiply, quat_rotate
 
     rng = np.random.default_rng(4)
     rot = _random_quats(rng, (22,))
@@ -244,7 +244,7 @@ def test_bad_settings_are_user_errors(kwargs):
 
 def test_real_clip_replayed_over_vmc_rebuilds_the_motion(marionette, shared_bvh):
     """A CMU clip sent at full speed: FK of what the marionette rebuilt lands on the clip's joints."""
-    from live.rig_mapping import load_motion
+    from live.motion.rig_mapping import load_motion
 
     motion = load_motion(shared_bvh / "cc_002_01.bvh")
     n = len(motion.rotations)

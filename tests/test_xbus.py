@@ -14,8 +14,8 @@ from drivers.xbus import (
     BID_MASTER, MID_MTDATA2, XbusConfigurator, XbusParser, decode_mtdata2, encode_message,
     encode_mtdata2,
 )
-from live.errors import DeviceError, FormatError
-from live.rotations import quat_from_axis_angle, quat_normalize, quat_rotate
+from live.core.errors import DeviceError, FormatError
+from live.core.rotations import quat_from_axis_angle, quat_normalize, quat_rotate
 
 TOL = {"float32": 1e-6, "fp1220": 5e-6, "fp1632": 1e-9, "float64": 1e-12}
 MAX_FRAME = xbus.MAX_DATA_LEN + 7

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from live.errors import FormatError
-from live.skeleton import JOINT_INDEX
+from live.core.errors import FormatError
+from live.core.skeleton import JOINT_INDEX
+from live.core import assets
 
-LAYOUT_DIR = Path(__file__).resolve().parent
+LAYOUT_DIR = assets.layouts_dir()
 DEFAULT_LAYOUT = LAYOUT_DIR / "full_body.json"
 
 #: Segment names people use for suits -> canonical joint.
@@ -46,7 +47,7 @@ def parse_layout(obj: object, *, path: str | None = None) -> dict[int, int]:
 
 def load_layout(path: str | Path | None = None) -> dict[int, int]:
     """Read a layout file (default: the 15-sensor full body) -> {sensor id: joint index}."""
-    from live.jsonfile import read_json
+    from live.core.jsonfile import read_json
 
     p = Path(path) if path is not None else DEFAULT_LAYOUT
     return parse_layout(read_json(p), path=str(p))

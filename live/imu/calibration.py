@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import FormatError, UserInputError
-from live.frames import MocapPacket
+from live.core.errors import FormatError, UserInputError
+from live.core.frames import MocapPacket
 from live.imu.layout import SuitLayout, load_suit_layout
-from live.rotations import (
+from live.core.rotations import (
     quat_angle, quat_between, quat_conjugate, quat_identity, quat_multiply, quat_normalize,
 )
-from live.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, default_rest_joints
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, default_rest_joints
 
 POSES = ("tpose", "npose")
 

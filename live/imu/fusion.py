@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.frames import SkeletonFrame
+from live.core.frames import SkeletonFrame
 from live.imu.calibration import Calibration, wrap_angle
 from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals, globals_to_locals, joints_from_globals
 from live.retarget.analytic import estimate_rest_joints
-from live.rotations import quat_between, quat_identity, quat_multiply, quat_rotate, quat_slerp
-from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
+from live.core.rotations import quat_between, quat_identity, quat_multiply, quat_rotate, quat_slerp
+from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
 
 
 

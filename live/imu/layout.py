@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from drivers.layouts import DEFAULT_LAYOUT, parse_layout
-from live.errors import FormatError
-from live.rotations import quat_normalize
-from live.skeleton import JOINT_NAMES
+from live.core.errors import FormatError
+from live.core.rotations import quat_normalize
+from live.core.skeleton import JOINT_NAMES
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ def load_suit_layout(spec: str | Path | dict | SuitLayout | None = None) -> Suit
         if spec and all(isinstance(k, int) for k in spec):  # {sensor id: joint index}
             spec = {"name": "suit", "sensors": {str(s): JOINT_NAMES[j] for s, j in spec.items()}}
         return parse_suit_layout(spec)
-    from live.jsonfile import read_json
+    from live.core.jsonfile import read_json
 
     p = Path(spec) if spec is not None else DEFAULT_LAYOUT
     return parse_suit_layout(read_json(p), path=str(p))

@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from live.frames import FrameResult, MocapPacket, SkeletonFrame
+from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
 from live.imu.calibration import Calibration, CalibrationCollector
 from live.imu.fusion import Fuser
 from live.imu.layout import SuitLayout, load_suit_layout
 from live.imu.suit_skeleton import SuitPose, SuitSolver
-from live.rotations import quat_slerp
-from live.skeleton import default_rest_joints
+from live.core.rotations import quat_slerp
+from live.core.skeleton import default_rest_joints
 
 MODES = ("depth", "imu", "fused")
 
@@ -208,7 +208,7 @@ def build_stages(mode: str, *, layout=None, calibration: Calibration | str | Pat
     file (default: calibrate on the held pose); stream_meta: the suit stream's metadata, whose
     layout / calibration hold fill in what is not given."""
     if mode not in MODES:
-        from live.errors import UserInputError
+        from live.core.errors import UserInputError
 
         raise UserInputError(f"unknown capture mode {mode!r}; expected one of {MODES}")
     opts = {"layout": layout, "pose": pose, "hold_s": hold_s, "min_hold_s": min_hold_s}

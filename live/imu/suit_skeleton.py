@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from live.imu.calibration import Calibration, yaw_quat
-from live.rotations import (
+from live.core.rotations import (
     quat_conjugate, quat_identity, quat_multiply, quat_normalize, quat_rotate, quat_slerp,
 )
-from live.skeleton import CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
+from live.core.skeleton import CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
 
 #: How much of a measured relative rotation an unmeasured joint takes, relative to the measured
 #: joint's own share (1.0). Collars move far less than the shoulders they carry.

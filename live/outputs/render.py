@@ -21,8 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from live.errors import UserInputError
-from live.frames import FrameResult
+from live.core.errors import UserInputError
+from live.core.frames import FrameResult
 from live.outputs.raster import (
     look_at,
     orient_outward,
@@ -32,7 +32,7 @@ from live.outputs.raster import (
     vertex_normals,
     world_to_camera,
 )
-from live.skeleton import BONES, JOINT_NAMES
+from live.core.skeleton import BONES, JOINT_NAMES
 
 log = logging.getLogger(__name__)
 

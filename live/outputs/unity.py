@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS
 
 #: canonical joint -> Unity HumanBodyBones name. Every one of the 22 joints drives one bone.
 JOINT_TO_UNITY_BONE: dict[str, str] = {

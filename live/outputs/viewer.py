@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from live.depth import points_to_world
-from live.errors import UserInputError
-from live.frames import FrameResult
+from live.core.depth import points_to_world
+from live.core.errors import UserInputError
+from live.core.frames import FrameResult
 from live.outputs.raster import vertex_normals
-from live.skeleton import BONES, JOINT_NAMES
+from live.core.skeleton import BONES, JOINT_NAMES
 
 log = logging.getLogger(__name__)
 

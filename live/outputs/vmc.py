@@ -30,8 +30,8 @@ import numpy as np
 from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
-from live.errors import UserInputError
-from live.frames import FrameResult
+from live.core.errors import UserInputError
+from live.core.frames import FrameResult
 from live.outputs.unity import (
     UNITY_BONE_INDEX,
     UNITY_BONES,
@@ -40,8 +40,8 @@ from live.outputs.unity import (
     quat_from_unity,
     quat_to_unity,
 )
-from live.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
-from live.skeleton import NUM_JOINTS, default_rest_joints, rest_offsets
+from live.core.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
+from live.core.skeleton import NUM_JOINTS, default_rest_joints, rest_offsets
 
 log = logging.getLogger(__name__)
 

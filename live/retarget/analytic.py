@@ -19,7 +19,7 @@ observed one(s); local rotations are then L_j = G_parent^T G_j.
 
 Forward kinematics of the result on the same rest skeleton reproduces the input joints exactly
 when the input came from that skeleton; twist that positions cannot see is not recovered.
-A frame is solved on plain floats (live/retarget/vec3.py): the pelvis and spine3 frames need no
+A frame is solved on plain floats (live/core/vec3.py): the pelvis and spine3 frames need no
 parent, then every swing joint after its parent; on one joint's 3x3 matrices numpy's per-call
 overhead was most of the cost (0.15 against 0.7 ms per frame, benchmarks/bench_retarget.py).
 Batches run frame after frame (the limb twists carry over), their local rotations in one batch.
@@ -32,12 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.errors import UserInputError
-from live.retarget.vec3 import Mat
-from live.retarget import vec3 as v3
+from live.core.errors import UserInputError
+from live.core.vec3 import Mat
+from live.core import vec3 as v3
 from live.retarget.ik import cross, dot, normalize
-from live.rotations import matrix_to_quat
-from live.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+from live.core.rotations import matrix_to_quat
+from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 
 _J = JOINT_INDEX
 #: Limb chains whose middle joint is a hinge: (root, middle, end, rest hinge axis).
@@ -192,7 +192,7 @@ def solve_globals(
 
 
 def fk_matrices(loc: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Forward kinematics on rotation matrices, level by level (same result as live.kinematics).
+    """Forward kinematics on rotation matrices, level by level (same result as live.core.kinematics).
 
     loc (N, 22, 3, 3) local rotations; root (N, 3); offsets (22, 3) rest offsets from the parent.
     Returns (global (N, 22, 3, 3), joints (N, 22, 3)).
@@ -271,13 +271,13 @@ def estimate_rest_joints(joints: np.ndarray, template: np.ndarray | None = None)
     """A T-pose rest skeleton (22 x 3) for a performer seen only as posed joints (T x 22 x 3).
 
     Bone lengths are the per-bone medians over frames; bone directions come from ``template``
-    (default: the body library's mean T-pose, live.body.mean_rest_template, or the straight-leg
-    live.skeleton.default_rest_joints() without a library; the straight legs make real performers
+    (default: the body library's mean T-pose, live.body.library.mean_rest_template, or the straight-leg
+    live.core.skeleton.default_rest_joints() without a library; the straight legs make real performers
     6-10 % tall). The feet are put on the floor at the template's foot height, scaled by the leg
     length found.
     """
-    from live.body import mean_rest_template
-    from live.skeleton import default_rest_joints
+    from live.body.library import mean_rest_template
+    from live.core.skeleton import default_rest_joints
 
     joints = np.asarray(joints, dtype=np.float64).reshape(-1, NUM_JOINTS, 3)
     if template is None:

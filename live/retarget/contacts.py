@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.errors import UserInputError
-from live.skeleton import JOINT_INDEX, NUM_JOINTS, pelvis_height
+from live.core.errors import UserInputError
+from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, pelvis_height
 
 #: (ankle, foot) joint indices of the left and right foot.
 FEET = np.array(

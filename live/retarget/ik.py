@@ -1,7 +1,7 @@
 """Two-bone limb IK, and the numpy vector helpers the retargeter's per-body set-up runs on.
 
-Matrices act on column vectors (v' = R v), like live/rotations.py. The IK of one frame's limbs
-runs on plain floats (live/retarget/vec3.py: numpy's per-call overhead is most of the cost on a
+Matrices act on column vectors (v' = R v), like live/core/rotations.py. The IK of one frame's limbs
+runs on plain floats (live/core/vec3.py: numpy's per-call overhead is most of the cost on a
 limb's 3-vectors); ``two_bone_ik`` takes any leading batch shape and loops over it. The numpy
 helpers (dot, normalize, cross) are pure and take any leading batch shape.
 """
@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from live.retarget import vec3 as v3
+from live.core import vec3 as v3
 
 _EPS = 1e-12
 # Levi-Civita symbol: one einsum against it replaces np.cross, which costs 5-10 times more on

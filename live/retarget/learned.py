@@ -14,15 +14,16 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import ModelError, UserInputError
-from live.frames import AvatarPose, GroundTruth, SkeletonFrame
-from live.kinematics import forward_kinematics
+from live.core.errors import ModelError, UserInputError
+from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
+from live.core.kinematics import forward_kinematics
 from live.retarget.analytic import joints_from_globals
 from live.retarget.feet import FootPlanter
-from live.rotations import matrix_to_quat, sixd_to_matrix
-from live.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+from live.core.rotations import matrix_to_quat, sixd_to_matrix
+from live.core.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+from live.core import assets
 
-DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "weights" / "retarget.onnx"
+DEFAULT_MODEL = assets.weight("retarget.onnx")
 TRAIN_FPS = 30.0
 
 
@@ -57,7 +58,7 @@ class LearnedRetargeter:
 
     def __init__(self, model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,
                  *, fps: float = 30.0, threads: int = 1, foot_lock: bool = False, floor: bool = False):
-        from live.onnx import open_session
+        from live.core.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
         self.session, self.card = open_session(self.path, threads=threads, what="retargeting model",
@@ -126,7 +127,7 @@ class LearnedRetargeter:
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
-        from live.retarget.stage import process_frame
+        from live.retarget.retargeter import process_frame
 
         return process_frame(self, frame)
 

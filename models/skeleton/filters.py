@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from live.skeleton import BONES, LEFT_RIGHT_SWAP, NUM_JOINTS
+from live.core.skeleton import BONES, LEFT_RIGHT_SWAP, NUM_JOINTS
 
 
 @dataclass

@@ -22,7 +22,7 @@ from functools import cached_property, lru_cache
 import cv2
 import numpy as np
 
-from live.frames import DepthFrame
+from live.core.frames import DepthFrame
 
 
 @dataclass(frozen=True)

@@ -17,15 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import ModelError, UserInputError
-from live.frames import DepthFrame, FrameResult, SkeletonFrame
+from live.core.errors import ModelError, UserInputError
+from live.core.frames import DepthFrame, FrameResult, SkeletonFrame
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder, PreprocessConfig
 from models.skeleton.temporal import TemporalRefiner, temporal_model_path
+from live.core import assets
 
 log = logging.getLogger(__name__)
 
-WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
+WEIGHTS_DIR = assets.weights_dir()
 DEFAULT_MODEL = WEIGHTS_DIR / "skeleton.onnx"
 BASELINE_MODEL = WEIGHTS_DIR / "skeleton_baseline.onnx"
 
@@ -38,7 +39,7 @@ class SkeletonRegressor:
     its model card next to the .onnx file; 256 when there is no card)."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1):
-        from live.onnx import open_session
+        from live.core.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_MODEL
         self.session, self.card = open_session(self.path, threads=threads, what="skeleton model",

@@ -28,10 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from live.errors import ModelError
-from live.skeleton import NUM_JOINTS
+from live.core.errors import ModelError
+from live.core.skeleton import NUM_JOINTS
+from live.core import assets
 
-WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "weights"
+WEIGHTS_DIR = assets.weights_dir()
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
 
 
@@ -113,7 +114,7 @@ class TemporalRefiner:
     the card."""
 
     def __init__(self, model_path: str | Path | None = None, threads: int = 1):
-        from live.onnx import open_session
+        from live.core.onnx import open_session
 
         self.path = Path(model_path) if model_path is not None else DEFAULT_TEMPORAL_MODEL
         self.session, self.card = open_session(self.path, threads=threads, what="temporal skeleton model",

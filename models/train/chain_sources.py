@@ -8,7 +8,7 @@ its own spectrum behind the temporal model. Training on the chain's own output t
 retargeter to smooth exactly that error. Each run: a window of a training clip (CMU subjects other
 than 7, 8, 12, 16) on a training body (never a held-out preset), seen by the virtual OAK-D from a
 random placement (1.5-4 m, within 90 degrees of the performer's front) and put through the shipped
-skeleton stage online (temporal model included), as ``live.retarget.evaluate.depth_skeletons``
+skeleton stage online (temporal model included), as ``live.evaluation.retarget.depth_skeletons``
 runs it. Kept per run: the stage's joints in the clip's coordinates (frames where nobody was found
 hold the last skeleton, as the live avatar does), the found mask, and the performer's T-pose
 estimated from those joints as the pipeline estimates it. Cached in .cache/ under the hashes of
@@ -59,11 +59,11 @@ def plan_runs(data: dict, clip_ids: np.ndarray, body_names: list[str], runs_per_
 
 def run_chain(run: dict, data: dict, template: np.ndarray) -> dict:
     """The skeleton stage's output for one planned run (see the module docstring)."""
-    from live.body import load_body
-    from live.kinematics import forward_kinematics
+    from live.body.library import load_body
+    from live.core.kinematics import forward_kinematics
     from live.retarget.analytic import estimate_rest_joints
-    from live.retarget.evaluate import depth_skeletons
-    from live.rig_mapping import Motion
+    from live.evaluation.retarget import depth_skeletons
+    from live.motion.rig_mapping import Motion
     from sim.synth import CameraPlacement
 
     c = run["clip"]
@@ -92,7 +92,7 @@ def build(data: dict, runs_per_clip: int = 2, frames: int = 300, workers: int = 
 
     from tqdm import tqdm
 
-    from live.body import list_presets, load_body, mean_rest_template
+    from live.body.library import list_presets, load_body, mean_rest_template
     from sim.skeleton_data import VAL_SUBJECTS, split_bodies
 
     clip_ids = np.flatnonzero(~np.isin(data["subject"], sorted(VAL_SUBJECTS)))[:clip_limit]

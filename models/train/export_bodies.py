@@ -1,4 +1,4 @@
-"""Export the body library from Anny (the ONLY place, with its caller live.body, that needs torch).
+"""Export the body library from Anny (the ONLY place, with its caller live.body.library, that needs torch).
 
     python -m models.train.export_bodies --out models/bodies
 
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from live.body import ANNY_KEYS as PHENOTYPE_KEYS
-from live.body import parse_anny_spec as parse_phenotype
-from live.skeleton import JOINT_INDEX, PARENTS
+from live.body.library import ANNY_KEYS as PHENOTYPE_KEYS
+from live.body.library import parse_anny_spec as parse_phenotype
+from live.core.skeleton import JOINT_INDEX, PARENTS
 
 #: Anny frame -> ours: x stays (subject's left), z up -> y up, -y forward -> +z forward.
 ANNY_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -107,7 +107,7 @@ def _anny_model():
 
 
 def _rotation_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    from live.rotations import quat_between, quat_to_matrix
+    from live.core.rotations import quat_between, quat_to_matrix
 
     return quat_to_matrix(quat_between(u, v))
 
@@ -135,12 +135,12 @@ def _tpose(vertices, heads, tails, parents, names, weights_dense):
 
 
 def build_body(phenotype: dict[str, float], name: str, target_vertices: int = TARGET_VERTICES):
-    """Build one body (live.body.Body) from an Anny phenotype."""
+    """Build one body (live.body.library.Body) from an Anny phenotype."""
     import open3d as o3d
     import torch
     from scipy.spatial import cKDTree
 
-    from live.body import Body
+    from live.body.library import Body
 
     model = _anny_model()
     with torch.no_grad():
@@ -197,7 +197,7 @@ def build_from_spec(spec: str):
 def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
-    from live.body import save_body
+    from live.body.library import save_body
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "bodies")

@@ -41,7 +41,7 @@ def wrap_with_mirror_average(model):
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
-    from live.skeleton import LEFT_RIGHT_SWAP
+    from live.core.skeleton import LEFT_RIGHT_SWAP
 
     graph = model.graph
     (inp,), (out,) = graph.input, graph.output
@@ -89,7 +89,7 @@ def apply_mirror_average(path: Path, data: dict[str, dict], num_points: int,
     ``data``) and the "test_time_mirror" record, with ``single`` (the metrics before) in it."""
     import onnx
 
-    from models.train.measure_skeleton import measure
+    from research.measure_skeleton import measure
 
     onnx.save(wrap_with_mirror_average(onnx.load(str(path))), str(path))
     keys = ("mpjpe_mm", "pa_mpjpe_mm", "pck_10cm", "upper_body_mpjpe_mm")
@@ -103,7 +103,7 @@ def apply_mirror_average(path: Path, data: dict[str, dict], num_points: int,
 def main(argv: list[str] | None = None) -> dict:
     import onnx
 
-    from models.train.measure_skeleton import measure, validation_sets
+    from research.measure_skeleton import measure, validation_sets
 
     p = argparse.ArgumentParser(prog="mirror_average", description=__doc__.splitlines()[0])
     p.add_argument("--model", type=Path, default=WEIGHTS / "skeleton.onnx")

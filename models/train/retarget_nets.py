@@ -55,7 +55,7 @@ def source_features(joints: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
 
 
 def sixd_to_matrix(d6: torch.Tensor) -> torch.Tensor:
-    """... x 6 -> ... x 3 x 3 (columns x, y, z) by Gram-Schmidt, as live.rotations."""
+    """... x 6 -> ... x 3 x 3 (columns x, y, z) by Gram-Schmidt, as live.core.rotations."""
     a, b = d6[..., :3], d6[..., 3:]
     x = a / a.norm(dim=-1, keepdim=True).clamp_min(1e-8)
     b = b - (x * b).sum(-1, keepdim=True) * x
@@ -73,7 +73,7 @@ def global_to_local(glob: torch.Tensor) -> torch.Tensor:
 
 def fk(local: torch.Tensor, root: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
     """Differentiable FK: local rotations B x T x 22 x 3 x 3, root B x T x 3, T-poses B x 22 x 3
-    -> world joints B x T x 22 x 3 (same result as live.kinematics.forward_kinematics)."""
+    -> world joints B x T x 22 x 3 (same result as live.core.kinematics.forward_kinematics)."""
     offsets = rest - rest[:, [max(p, 0) for p in PARENTS]]
     glob = [local[:, :, 0]]
     pos = [root]

@@ -2,7 +2,7 @@
 
     python -m models.train.train_retarget [--quick] [--out DIR] [--minutes M]
 
-Data: every CMU clip of ../shared/data/bvh mapped to the canonical skeleton (live.rig_mapping),
+Data: every CMU clip of ../shared/data/bvh mapped to the canonical skeleton (live.motion.rig_mapping),
 resampled to 30 fps (cached in .cache/retarget_clips.npz). A training sample is a window of the
 clip's local rotations, turned by a random yaw, put on a source body A and a target body B: each a
 T-pose of the body library (training presets of sim.skeleton_data.split_bodies) with random
@@ -50,7 +50,7 @@ BATCH = 48
 def load_clips(cache: Path = CACHE / "retarget_clips_v2.npz") -> dict:
     """All clips at 30 fps: rotations (N,22,4), root (N,3), offsets (C+1,), rest (C,22,3),
     subject (C,) (-1 = none), names (C,). Cached; rebuilt when the clip list changes."""
-    from live.rig_mapping import load_motion, resample
+    from live.motion.rig_mapping import load_motion, resample
     from sim.skeleton_data import BVH_DIR, list_clips
 
     clips = list_clips()
@@ -60,7 +60,7 @@ def load_clips(cache: Path = CACHE / "retarget_clips_v2.npz") -> dict:
         if list(data["names"]) == names:
             return data
     rots, roots, rests, offsets = [], [], [], [0]
-    from live.retarget.evaluate import grounded
+    from live.evaluation.retarget import grounded
 
     for c in clips:
         m = grounded(resample(load_motion(BVH_DIR / c.file), FPS))
@@ -80,16 +80,16 @@ def body_rests(split: str, source: str = "library") -> tuple[list[str], np.ndarr
     """Names and (K, 22, 3) T-poses of the bodies of a split (train / val).
 
     source "library": the body-library presets (sim.skeleton_data.split_bodies); "generic": a
-    seeded set of generic T-poses (live.skeleton.default_rest_joints at 1.0-1.95 m, bones scaled
+    seeded set of generic T-poses (live.core.skeleton.default_rest_joints at 1.0-1.95 m, bones scaled
     by up to +-10 %), usable without the library."""
     if source == "generic":
-        from live.skeleton import default_rest_joints
+        from live.core.skeleton import default_rest_joints
 
         rng = np.random.default_rng(1 if split == "train" else 2)
         heights = np.linspace(1.0, 1.95, 12 if split == "train" else 4)
         return ([f"generic-{h:.2f}" for h in heights],
                 np.stack([scale_bones(default_rest_joints(h), random_factors(rng, 0.1)) for h in heights]))
-    from live.body import list_presets, load_body
+    from live.body.library import list_presets, load_body
     from sim.skeleton_data import split_bodies
 
     names = split_bodies(list_presets(), "train" if split == "train" else "val")
@@ -99,7 +99,7 @@ def body_rests(split: str, source: str = "library") -> tuple[list[str], np.ndarr
 def scale_bones(rest: np.ndarray, factors: np.ndarray) -> np.ndarray:
     """(22,3) T-pose with bone j's offset times factors[j] (22,), rebuilt from the pelvis, lowest
     foot joint kept at its height (feet stay on the floor)."""
-    from live.skeleton import PARENTS, rest_offsets
+    from live.core.skeleton import PARENTS, rest_offsets
 
     off = rest_offsets(rest) * factors[:, None]
     out = np.empty_like(rest)
@@ -112,7 +112,7 @@ def scale_bones(rest: np.ndarray, factors: np.ndarray) -> np.ndarray:
 
 def random_factors(rng: np.random.Generator, spread: float = 0.15) -> np.ndarray:
     """(22,) per-bone length factors, left and right alike."""
-    from live.skeleton import LEFT_RIGHT_SWAP
+    from live.core.skeleton import LEFT_RIGHT_SWAP
 
     f = rng.uniform(1 - spread, 1 + spread, 22)
     return 0.5 * (f + f[LEFT_RIGHT_SWAP])
@@ -221,7 +221,7 @@ def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body
 #: Error of the depth skeleton stage per joint (std per axis, mm) and its frame-to-frame
 #: correlation at 30 fps, measured on training clips (cc_002_05, mb_02_01 on heavy_male and
 #: petite_female, virtual OAK-D) behind the online temporal model (skeleton_temporal.onnx), the
-#: stage's default: `python -m models.train.measure_skeleton_noise`. (Behind the One Euro filter of
+#: stage's default: `python -m research.measure_skeleton_noise`. (Behind the One Euro filter of
 #: earlier releases it was ~1.6x larger: 15-27 mm on the body, 46-51 on the wrists, 0.8.)
 DEPTH_NOISE_MM = (9, 13, 12, 9, 11, 10, 10, 16, 15, 10, 16, 16, 9, 8, 8, 9, 13, 14, 34, 31, 37, 28)
 DEPTH_NOISE_CORR = 0.87
@@ -310,9 +310,9 @@ def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, ba
 def validate(onnx_path: Path, data: dict, clip_ids: np.ndarray, rests: np.ndarray, max_frames: int) -> dict:
     """Whole held-out clips on held-out body pairs, online (one ONNX step per frame), against the
     analytic retargeter: MPJPE / PA-MPJPE / Acc (m, m/frame^2) averaged over (clip, pair)."""
-    from live.kinematics import forward_kinematics
-    from live.metrics import acceleration_error, mpjpe, pa_mpjpe
-    from live.retarget import retarget_motion
+    from live.core.kinematics import forward_kinematics
+    from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe
+    from live.retarget.retargeter import retarget_motion
     from live.retarget.learned import LearnedRetargeter
 
     res = {"learned": [], "analytic": []}

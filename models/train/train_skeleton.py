@@ -144,8 +144,8 @@ def predict(model: torch.nn.Module, points: np.ndarray, num_points: int, batch: 
 
 def metrics(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray | None = None) -> dict:
     """MPJPE, PA-MPJPE (mm), PCK@10cm, per-joint MPJPE (mm) of S x 22 x 3 predictions."""
-    from live.metrics import mpjpe, pa_mpjpe, pck, per_joint_mpjpe
-    from live.skeleton import JOINT_NAMES
+    from live.core.metrics import mpjpe, pa_mpjpe, pck, per_joint_mpjpe
+    from live.core.skeleton import JOINT_NAMES
 
     out = {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
            "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 4),
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> dict:
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12))))}
     data_seconds = round(time.monotonic() - t0, 1)
-    from live.body import list_presets
+    from live.body.library import list_presets
     from models.train.mirror_average import apply_mirror_average
 
     kinds = ("ours", "baseline") if args.model == "both" else (args.model,)

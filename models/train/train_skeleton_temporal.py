@@ -145,7 +145,7 @@ def triples(ex: dict) -> np.ndarray:
 
 def mirror_features(x: np.ndarray, window: int) -> np.ndarray:
     """Mirror a batch of window features: x -> -x of every joint, left/right swapped."""
-    from live.skeleton import LEFT_RIGHT_SWAP
+    from live.core.skeleton import LEFT_RIGHT_SWAP
 
     b = len(x)
     j = x[:, :window * 66].reshape(b, window, 22, 3)[:, :, LEFT_RIGHT_SWAP] * FLIP.astype(np.float32)
@@ -155,7 +155,7 @@ def mirror_features(x: np.ndarray, window: int) -> np.ndarray:
 
 def train(ex: dict, window: int, epochs: int, lr: float, acc_weight: float, seed: int, net: dict,
           progress: bool) -> tuple[TemporalRefineNet, dict]:
-    from live.skeleton import LEFT_RIGHT_SWAP
+    from live.core.skeleton import LEFT_RIGHT_SWAP
     from tqdm import tqdm
 
     torch.manual_seed(seed)
@@ -224,7 +224,7 @@ def sequence_metrics(data: dict, world_by_method: dict[str, np.ndarray], mask: n
     """MPJPE, PA-MPJPE (mm), PCK@10cm and acceleration error (mm/frame^2) of world joints
     (S, F, 22, 3) per method, on found frames (and ``mask`` (S, F) when given); acceleration
     over runs of such frames."""
-    from live.metrics import acceleration_error, mpjpe, pa_mpjpe, pck
+    from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe, pck
 
     out = {}
     found = data["found"] if mask is None else data["found"] & mask

@@ -31,7 +31,7 @@ VAL_SUBJECTS = (7, 8, 12, 16)
 
 def lbs_torch(vertices: torch.Tensor, weights: torch.Tensor, rest: torch.Tensor, local: torch.Tensor) -> torch.Tensor:
     """Vertices N x 3 (T-pose), weights N x 22, T-pose joints 22 x 3, local rotations P x 22 x 3 x 3
-    -> posed vertices P x N x 3 (root at the rest pelvis; as live.skinning.lbs)."""
+    -> posed vertices P x N x 3 (root at the rest pelvis; as live.body.skinning.lbs)."""
     glob, pos = [local[:, 0]], [rest[0].expand(local.shape[0], 3)]
     for j in range(1, 22):
         p = PARENTS[j]
@@ -44,7 +44,7 @@ def lbs_torch(vertices: torch.Tensor, weights: torch.Tensor, rest: torch.Tensor,
 
 
 def library(split: str) -> list:
-    from live.body import list_presets, load_body
+    from live.body.library import list_presets, load_body
     from sim.skeleton_data import split_bodies
 
     return [load_body(n) for n in split_bodies(list_presets(), split)]
@@ -89,9 +89,9 @@ def train(field: SkinningField, bodies: list, poses: np.ndarray, minutes: float,
 
 def validate(onnx_path: Path, bodies: list, poses: np.ndarray, seed: int) -> dict:
     """Held-out bodies: weight errors and MPVD of LBS with predicted vs true weights (metres)."""
-    from live.metrics import mpvd
-    from live.retarget.skinning_field import SkinningFieldModel
-    from live.skinning import lbs
+    from live.core.metrics import mpvd
+    from live.body.skinning_field import SkinningFieldModel
+    from live.body.skinning import lbs
 
     model = SkinningFieldModel(onnx_path)
     rng = np.random.default_rng(seed)

@@ -1,0 +1,94 @@
+"""Assemble stages and sinks from command-line options (one place for demo, replay and run)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from live.core.errors import UserInputError
+from live.io.results import ResultsWriter
+from live.pipeline.stages import CloudStage, RetargetStage
+from live.core import assets
+
+DEFAULT_SKELETON_MODEL = assets.weight("skeleton.onnx")
+
+
+@dataclass
+class RunOptions:
+    out: Path
+    avatar: str | None = None
+    retarget: str = "analytic"
+    foot_lock: bool = True
+    hand_ik: bool = False
+    model: Path | None = None
+    threads: int = 1
+    lag: int = 0
+    vmc: str | None = None
+    vmc_rate: float = 60.0
+    viewer: str | None = None
+    video: Path | None = None
+    fps: float = 30.0
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        raise UserInputError(f"--vmc wants HOST:PORT (e.g. 127.0.0.1:39539), not {text!r}")
+    return host, int(port)
+
+
+def build(opts: RunOptions) -> tuple[list, list, dict]:
+    """(stages, sinks, parts) for a run; parts holds named stages/sinks the caller reports on."""
+    parts: dict = {}
+    stages: list = []
+    model = opts.model or DEFAULT_SKELETON_MODEL
+    if opts.model is not None and not Path(opts.model).is_file():
+        raise UserInputError(f"no such skeleton model: {opts.model}")
+    if Path(model).is_file():
+        from models.skeleton.runtime import SkeletonStage
+
+        stages.append(SkeletonStage(model_path=model, threads=opts.threads, lag=opts.lag))
+        parts["skeleton"] = stages[-1]
+    elif opts.lag:
+        raise UserInputError("--lag needs the skeleton model (models/weights/skeleton.onnx)")
+    else:
+        # No skeleton model: the pipeline still turns every depth frame into a world cloud.
+        stages.append(CloudStage())
+    body = None
+    if opts.avatar:
+        body = _load_avatar(opts.avatar)
+        skin = opts.viewer is not None or opts.video is not None
+        stages.append(RetargetStage(body, kind=opts.retarget, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik,
+                                    skin=skin))
+        parts["avatar"] = body
+    results = ResultsWriter(opts.out, avatar_rest_joints=None if body is None else body.rest_joints, fps=opts.fps)
+    parts["results"] = results
+    from live.pipeline.accuracy import AccuracySink
+
+    accuracy = AccuracySink()
+    parts["accuracy"] = accuracy
+    sinks: list = [results, accuracy]
+    if opts.vmc:
+        from live.outputs.vmc import VmcSink
+
+        host, port = parse_host_port(opts.vmc)
+        sinks.append(VmcSink(host, port, rate_hz=opts.vmc_rate or None,
+                             avatar_rest_joints=None if body is None else body.rest_joints))
+    if opts.viewer:
+        from live.outputs.viewer import RerunSink
+
+        mode, _, path = opts.viewer.partition(":")
+        if mode not in ("spawn", "web", "save"):
+            raise UserInputError("--viewer wants spawn, web or save:FILE.rrd")
+        sinks.append(RerunSink(mode=mode, path=path or None, avatar_faces=None if body is None else body.faces))
+    if opts.video:
+        from live.outputs.render import VideoSink
+
+        sinks.append(VideoSink(opts.video, fps=opts.fps, avatar_faces=None if body is None else body.faces))
+    return stages, sinks, parts
+
+
+def _load_avatar(spec: str):
+    from live.body.avatar import load_avatar
+
+    return load_avatar(spec)

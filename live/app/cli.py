@@ -1,0 +1,202 @@
+"""The ``livecap`` command line. Every user mistake ends in one line and a non-zero exit."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+# The pipeline's matrices are small and it runs its own threads: BLAS thread pools only fight
+# them for the two cores (LBS is 4x faster single-threaded on a busy 2-core machine). Set before
+# numpy is imported; a user's explicit setting wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from live import __version__
+from live.core.errors import LivecapError
+
+EXIT_USER_ERROR = 2
+LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother temporal model, "
+            "each skeleton 67 ms later with ~40 %% less jitter")
+
+
+def _add_replay_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--speed", default="max", help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
+    _add_output_options(p)
+
+
+def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None = None) -> None:
+    p.add_argument("--avatar", default=avatar_default, help="retarget onto this avatar: a body preset, a body .npz, "
+                   "a T-pose mesh or point cloud (OBJ/PLY/GLB), or anny:k=v,... (train extra)")
+    p.add_argument("--retarget", default="analytic", choices=["analytic", "learned"], help="retargeter (default analytic)")
+    p.add_argument("--no-foot-lock", action="store_true", help="do not lock feet in contact with the floor")
+    p.add_argument("--hand-ik", action="store_true", help="hands reach where the performer's hands reach (scaled)")
+    p.add_argument("--model", type=Path, default=None, help="skeleton model (.onnx; default: the shipped one)")
+    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads for the skeleton model (default 1)")
+    p.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
+    p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
+                   "(e.g. 127.0.0.1:39539); off unless given")
+    p.add_argument("--vmc-rate", type=float, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
+    p.add_argument("--viewer", nargs="?", const="spawn", default=None, metavar="spawn|web|save:FILE.rrd",
+                   help="show the live viewer (Rerun; the viewer extra)")
+    p.add_argument("--video", type=Path, default=None, help="also write a rendered video (.mp4)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="livecap", description="Open, ROS-free live human capture: depth cameras and "
+                                     "IMU suits -> 3D skeleton -> retargeted avatar, live.")
+    parser.add_argument("--version", action="version", version=f"livecap {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="replay the bundled session through the pipeline and write the results",
+                       description="Replay the bundled demo session through the whole pipeline; writes stats.json "
+                       "and the result files into --out.")
+    p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
+    p.add_argument("--session", type=Path, default=None, help="another session to use instead of the bundled one")
+    p.add_argument("--speed", default="max", help="1.0 = recorded timing, max = as fast as possible (default)")
+    p.add_argument("--no-video", action="store_true", help="skip writing demo.mp4")
+    _add_output_options(p, avatar_default="default")
+
+    p = sub.add_parser("replay", help="replay a session or a depth PNG folder through the pipeline",
+                       description="Replay SESSION.mcap (or a folder of 16-bit depth PNGs with intrinsics.json) "
+                       "through the pipeline and write DIR/stats.json and the result files.")
+    p.add_argument("session", help="a .mcap session or a depth folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--only", choices=["depth", "imu", "fused"], default=None,
+                   help="with a depth + IMU session: skeleton from depth only, the suit only, or both fused")
+    p.add_argument("--calibration", type=Path, default=None, help="suit calibration (from `livecap calibrate`)")
+    _add_replay_options(p)
+
+    p = sub.add_parser("record", help="record sources into a session file",
+                       description="Record one or more sources (e.g. a camera and a suit) into an MCAP session.")
+    p.add_argument("--source", action="append", required=True, help="source string (repeatable): oak, oak:MXID, "
+                   "realsense, serial:PORT:xbus|lines[:baud], replay:S.mcap, folder:DIR, sim:CLIP.bvh")
+    p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("run", help="run the live pipeline on sources",
+                       description="Run the live pipeline on one or more sources (latest-frame mode: bounded latency).")
+    p.add_argument("--source", action="append", required=True, help="source string (repeatable), see `record`")
+    p.add_argument("--out", type=Path, default=Path("run_out"), help="folder for stats.json and results")
+    p.add_argument("--record", type=Path, default=None, help="also record the sources into this session file")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    _add_output_options(p)
+
+    p = sub.add_parser("export", help="export a session's streams as .npz files",
+                       description="Write one .npz per stream (gt.npz, depth_<s>.npz, serial_<d>.npz, imu_<d>.npz).")
+    p.add_argument("session", type=Path)
+    p.add_argument("--out", type=Path, default=None, help="output folder for the .npz files")
+    p.add_argument("--foxglove", type=Path, default=None, metavar="OUT.mcap",
+                   help="write a Foxglove-ready MCAP (PointCloud, SceneUpdate, FrameTransforms) instead")
+    p.add_argument("--results", type=Path, default=None, help="with --foxglove: a replay's output folder "
+                   "(skeleton.npz, avatar.npz) to include")
+    p.add_argument("--max-points", type=int, default=None, help="with --foxglove: subsample clouds to this many points")
+
+    p = sub.add_parser("info", help="describe a session file", description="Print a session's streams, "
+                       "message counts, duration and metadata.")
+    p.add_argument("session", type=Path)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("render", help="render a session or depth folder to a video",
+                       description="Replay SESSION|FOLDER through the pipeline and write a video: the depth image with "
+                       "the skeleton drawn over it beside the shaded avatar, with timing and confidence captions.")
+    p.add_argument("session", help="a .mcap session or a depth folder")
+    p.add_argument("--out", type=Path, required=True, help="video file to write (.mp4)")
+    p.add_argument("--speed", default="max", help=argparse.SUPPRESS)
+    _add_output_options(p, avatar_default="default")
+
+    p = sub.add_parser("synth", help="write a synthetic session (a motion on a body, seen by a virtual camera)",
+                       description="Render a BVH motion on a body with the virtual depth camera and write a session "
+                       "exactly like a recorded one, plus ground truth (joints, rotations, body). Same seed, same bytes.")
+    p.add_argument("--motion", required=True, help="a BVH clip")
+    p.add_argument("--body", default="performer", help="body preset, body .npz, or anny:k=v,... (default: performer)")
+    p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
+    p.add_argument("--camera", default="oak-d", help="oak-d (default), oak-d-pro, kinect-v1")
+    p.add_argument("--seconds", type=float, default=None, help="length (default: the whole clip)")
+    p.add_argument("--start", type=float, default=0.0, help="start this many seconds into the clip")
+    p.add_argument("--fps", type=float, default=None, help="sensor rate (default: the camera preset's)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--imu", choices=["xbus", "lines"], default=None, help="also stream a simulated IMU suit")
+    p.add_argument("--distance", type=float, default=3.0, help="camera distance from the performance centre, m")
+    p.add_argument("--height", type=float, default=1.2, help="camera height above the floor, m")
+    p.add_argument("--yaw", type=float, default=0.0, help="camera angle around the performer, degrees (0 = in front)")
+    p.add_argument("--no-noise", action="store_true", help="ideal depth (no sensor noise)")
+    p.add_argument("--max-range", type=float, default=None, help="depth threshold in metres (farther reads 0), "
+                   "like the device's threshold filter (default: the camera preset's range)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("eval", help="evaluate the skeleton regressor or a retargeter against ground truth",
+                       description="eval skeleton: replay sessions with ground truth through the skeleton stage and "
+                       "report MPJPE, PA-MPJPE, per-joint MPJPE, PCK@10cm, acceleration error and latency. "
+                       "eval retarget: retarget a motion from one body to another and report MPJPE, PA-MPJPE, Acc, "
+                       "PA-Acc, MPVD, PA-MPVD and MDEL.")
+    esub = p.add_subparsers(dest="what", metavar="WHAT", required=True)
+    e = esub.add_parser("skeleton", help="the depth -> skeleton stage")
+    e.add_argument("sessions", nargs="+", type=Path, help="sessions with ground truth (e.g. from `livecap synth`)")
+    e.add_argument("--model", type=Path, default=None, help="model to evaluate (default: the shipped one)")
+    e.add_argument("--compare", choices=["baseline"], default=None, help="also evaluate the reference PointNet")
+    e.add_argument("--threads", type=int, default=1)
+    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+    e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
+    e.add_argument("--motion", required=True, help="a BVH clip")
+    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
+    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
+    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
+                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
+    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
+    e.add_argument("--max-frames", type=int, default=None)
+    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+
+    p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
+                       description="Train and export a model with its model card. Extra arguments go to the trainer "
+                       "(see `livecap train WHAT -- --help`).")
+    p.add_argument("what", choices=["skeleton", "skeleton-temporal", "retarget", "skinning", "bodies"])
+    p.add_argument("--quick", action="store_true", help="a tiny run for smoke tests")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="more arguments for the trainer")
+
+    p = sub.add_parser("calibrate", help="calibrate an IMU suit (hold a T-pose or N-pose for 2 s)",
+                       description="Read the suit, wait for the performer to hold the pose still for 2 s, and save "
+                       "the sensor-to-segment calibration as JSON.")
+    p.add_argument("--source", required=True, help="serial source, e.g. serial:/dev/ttyUSB0:xbus")
+    p.add_argument("--out", type=Path, required=True, help="calibration file to write (.json)")
+    p.add_argument("--pose", choices=["tpose", "npose"], default="tpose")
+    p.add_argument("--layout", default=None, help="suit layout JSON (default: the 15-sensor full-body layout)")
+    p.add_argument("--height", type=float, default=1.75, help="performer height in metres")
+    p.add_argument("--timeout", type=float, default=60.0, help="give up after this many seconds")
+
+    sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
+                   description="List connected OAK devices, RealSense devices and serial ports.")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="livecap: %(message)s")
+    if args.command is None:
+        parser.print_help()
+        return EXIT_USER_ERROR
+    from live.app import commands
+
+    try:
+        return int(getattr(commands, f"cmd_{args.command}")(args) or 0)
+    except LivecapError as exc:
+        print(f"livecap {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except FileNotFoundError as exc:
+        print(f"livecap {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print(f"livecap {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

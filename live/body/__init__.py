@@ -1,0 +1,1 @@
+"""Bodies and avatars: the body library, linear blend skinning, avatars from meshes, the skinning field."""

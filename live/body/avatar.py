@@ -1,0 +1,164 @@
+"""Avatars: ``load_avatar(spec) -> Body`` for a body preset, a body file, or any T-pose mesh / cloud.
+
+A preset name, a body ``.npz`` or an ``anny:...`` phenotype goes to live.body.library.load_body. Any other
+file that open3d reads (OBJ, PLY, glTF/GLB, OFF, STL as meshes; PLY/PCD/XYZ/PTS as point clouds)
+is taken as a humanoid in the canonical T-pose (facing +z, y up, arms along x), in metres (a figure
+taller than 3 units is read as centimetres, taller than 300 as millimetres). It is put on the floor
+(feet at y = 0) and centred, and gets:
+
+- a T-pose skeleton by fitting the canonical skeleton template to the figure (``fit_skeleton``):
+  each joint keeps its position relative to the figure's extent, averaged over the body library
+  (x in half arm spans, y in heights, z in heights from the hip centre), then the arm chain is put
+  at the arm's height and the knees and ankles at the centres of the legs. We chose this over running the
+  skeleton regressor on a virtual depth render because the regressor is trained on people seen in
+  rooms at 1.5-4 m, not on turntable renders of arbitrary characters; the template fit is exact in
+  its assumptions (a T-pose) and measured in docs/learned_retargeting.md;
+- skinning weights from the skinning field (live/body/skinning_field.py).
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+
+from live.core.errors import FormatError, UserInputError
+from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
+
+MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".off", ".stl", ".fbx")
+CLOUD_SUFFIXES = (".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+_ARM = tuple(JOINT_INDEX[n] for n in ("left_collar", "left_shoulder", "left_elbow", "left_wrist",
+                                      "right_collar", "right_shoulder", "right_elbow", "right_wrist"))
+_LEGS = tuple(JOINT_INDEX[n] for n in ("left_knee", "left_ankle", "right_knee", "right_ankle"))
+
+
+def is_geometry_file(spec: str | Path) -> bool:
+    """True for a path whose suffix is a mesh or point-cloud format (not a body .npz)."""
+    return Path(str(spec)).suffix.lower() in MESH_SUFFIXES + CLOUD_SUFFIXES
+
+
+def read_geometry(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, faces (F, 3) int32; F = 0 for a point cloud) read by open3d."""
+    import open3d as o3d
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserInputError(f"no avatar file {path}")
+    verts, faces = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        mesh = o3d.io.read_triangle_mesh(str(path))
+        verts, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
+    if len(faces) == 0 and path.suffix.lower() in (".ply",) + CLOUD_SUFFIXES:
+        cloud = o3d.io.read_point_cloud(str(path))
+        verts = np.asarray(cloud.points, np.float64)
+    if len(verts) < 100:
+        raise FormatError(f"open3d read {len(verts)} points; an avatar needs at least 100", path=str(path))
+    return verts, faces
+
+
+def normalise_figure(vertices: np.ndarray) -> np.ndarray:
+    """Vertices in metres, feet on y = 0, x centred on the bounding box, z on the hip band's centre."""
+    v = np.asarray(vertices, np.float64).copy()
+    height = np.ptp(v[:, 1])
+    if not height > 0:
+        raise UserInputError("the avatar has no height")
+    if height > 300.0:
+        v *= 0.001
+    elif height > 3.0:
+        v *= 0.01
+    v[:, 1] -= v[:, 1].min()
+    v[:, 0] -= 0.5 * (v[:, 0].min() + v[:, 0].max())
+    h = v[:, 1].max()
+    band = (v[:, 1] > 0.45 * h) & (v[:, 1] < 0.6 * h) & (np.abs(v[:, 0]) < 0.2 * h)
+    v[:, 2] -= np.median(v[band, 2]) if band.any() else np.median(v[:, 2])
+    return v
+
+
+def _extent(v: np.ndarray) -> tuple[float, float, float]:
+    """(height, half arm span, hip-band z centre) of a figure already on the floor, x-centred."""
+    h = float(v[:, 1].max() - v[:, 1].min())
+    span = 0.5 * float(v[:, 0].max() - v[:, 0].min())
+    band = (v[:, 1] > 0.45 * h) & (v[:, 1] < 0.6 * h) & (np.abs(v[:, 0]) < 0.2 * h)
+    zc = float(np.median(v[band, 2])) if band.any() else float(np.median(v[:, 2]))
+    return h, span, zc
+
+
+def normalised_joints(vertices: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
+    """(22, 3) joints in figure units: x / half span, y / height, (z - hip z) / height."""
+    h, span, zc = _extent(np.asarray(vertices, np.float64))
+    j = np.asarray(rest_joints, np.float64)
+    return np.stack([j[:, 0] / span, j[:, 1] / h, (j[:, 2] - zc) / h], axis=1)
+
+
+@functools.lru_cache(maxsize=1)
+def skeleton_template(exclude: tuple[str, ...] = ()) -> np.ndarray:
+    """(22, 3) mean normalised T-pose joints over the body-library presets (minus ``exclude``)."""
+    from live.body.library import list_presets, load_body
+
+    rows = []
+    for name in list_presets():
+        if name in exclude:
+            continue
+        b = load_body(name)
+        rows.append(normalised_joints(b.vertices, b.rest_joints))
+    if not rows:
+        raise UserInputError("the body library is empty: no skeleton template")
+    tpl = np.mean(rows, axis=0)
+    tpl[:, 0] -= tpl[0, 0]  # a symmetric template: the pelvis on x = 0
+    return tpl
+
+
+def fit_skeleton(vertices: np.ndarray, template: np.ndarray | None = None) -> np.ndarray:
+    """T-pose joints (22, 3) of a normalised figure (see ``normalise_figure``) from the template,
+    with the arm chain moved to the arm's own height and the knees / ankles to the legs' x centres."""
+    v = np.asarray(vertices, np.float64)
+    tpl = skeleton_template() if template is None else np.asarray(template, np.float64)
+    h, span, zc = _extent(v)
+    j = np.stack([tpl[:, 0] * span, tpl[:, 1] * h, tpl[:, 2] * h + zc], axis=1)
+    # Arms: horizontal in the T-pose; their height is the median height of the points beyond the
+    # elbow (what is there is arm), corrected by the template's own shoulder-to-arm offset.
+    for side, sign in ((0, 1.0), (4, -1.0)):
+        elbow = j[_ARM[side + 2]]
+        arm = sign * v[:, 0] > sign * elbow[0]
+        if arm.sum() > 10:
+            dy = float(np.median(v[arm, 1])) - elbow[1]
+            for k in _ARM[side + 1:side + 4]:
+                j[k, 1] += dy
+    # Knees and ankles: the x centre of the leg's points at the joint's height (not the hips: at
+    # their height the slab holds the pelvis too, which made them worse).
+    for k in _LEGS:
+        slab = (np.abs(v[:, 1] - j[k, 1]) < 0.02 * h) & (np.sign(v[:, 0]) == np.sign(j[k, 0]))
+        slab &= np.abs(v[:, 0]) < 0.25 * h
+        if slab.sum() > 10:
+            j[k, 0] = 0.5 * (v[slab, 0].min() + v[slab, 0].max())
+    return j.astype(np.float32)
+
+
+def avatar_from_points(vertices: np.ndarray, faces: np.ndarray | None = None, *, name: str = "avatar",
+                       field_model: str | Path | None = None, rest_joints: np.ndarray | None = None):
+    """A Body from T-pose geometry: normalised, skeleton fitted (unless given), weights from the field."""
+    from live.body.library import Body
+    from live.body.skinning_field import SkinningFieldModel
+
+    v = normalise_figure(vertices)
+    joints = fit_skeleton(v) if rest_joints is None else np.asarray(rest_joints, np.float32)
+    weights = SkinningFieldModel(field_model).weights(v, joints)
+    f = np.zeros((0, 3), np.int32) if faces is None else np.asarray(faces, np.int32)
+    return Body(vertices=v.astype(np.float32), faces=f, rest_joints=joints, weights=weights,
+                parents=PARENTS.copy(), name=name, phenotype=None)
+
+
+def load_avatar(spec: str | Path, *, field_model: str | Path | None = None):
+    """A Body for ``--avatar``: a preset name, a body .npz, ``anny:...``, or a T-pose mesh / point
+    cloud file (skeleton fitted, weights from the skinning field)."""
+    from live.body.library import load_body
+
+    if is_geometry_file(spec):
+        verts, faces = read_geometry(spec)
+        return avatar_from_points(verts, faces, name=Path(str(spec)).stem, field_model=field_model)
+    return load_body(spec)
+
+
+__all__ = ["load_avatar", "avatar_from_points", "fit_skeleton", "normalise_figure", "read_geometry",
+           "skeleton_template", "is_geometry_file", "NUM_JOINTS"]

@@ -1,0 +1,118 @@
+"""Plain-float 3-vectors and 3x3 matrices for the retargeter's per-frame hot path.
+
+One frame of the analytic retargeter is a few dozen rotations of single joints. On arrays that
+small numpy pays ~1-5 us of call overhead per operation, plain Python floats ~0.1 us, so the
+per-frame solver (live/retarget/analytic.py) and the two-bone IK (live/retarget/ik.py) run on
+these and make arrays once per frame. Vectors are 3-sequences of floats, matrices 3 rows acting
+on column vectors (v' = M v), as in live/core/rotations.py. Pure functions; float64 throughout, so
+results equal numpy's to rounding.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+Vec = Sequence[float]
+Mat = Sequence[Vec]
+EPS = 1e-12
+IDENTITY: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def add(a: Vec, b: Vec) -> tuple[float, float, float]:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def sub(a: Vec, b: Vec) -> tuple[float, float, float]:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def scale(a: Vec, s: float) -> tuple[float, float, float]:
+    return (a[0] * s, a[1] * s, a[2] * s)
+
+
+def dot(a: Vec, b: Vec) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def cross(a: Vec, b: Vec) -> tuple[float, float, float]:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def norm(a: Vec) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def unit(a: Vec) -> tuple[float, float, float]:
+    """a / |a| (a zero vector stays zero, as live.retarget.ik.normalize does on arrays)."""
+    n = max(norm(a), EPS)
+    return (a[0] / n, a[1] / n, a[2] / n)
+
+
+def clamp(x: float, lo: float = -1.0, hi: float = 1.0) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
+def mv(m: Mat, v: Vec) -> tuple[float, float, float]:
+    """M v."""
+    return (dot(m[0], v), dot(m[1], v), dot(m[2], v))
+
+
+def mtv(m: Mat, v: Vec) -> tuple[float, float, float]:
+    """M^T v."""
+    return (m[0][0] * v[0] + m[1][0] * v[1] + m[2][0] * v[2],
+            m[0][1] * v[0] + m[1][1] * v[1] + m[2][1] * v[2],
+            m[0][2] * v[0] + m[1][2] * v[1] + m[2][2] * v[2])
+
+
+def mtm(a: Mat, b: Mat) -> tuple[tuple[float, float, float], ...]:
+    """A^T B."""
+    return mm(tuple(zip(*a)), b)
+
+
+def mm(a: Mat, b: Mat) -> tuple[tuple[float, float, float], ...]:
+    """A B."""
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return tuple((r[0] * b00 + r[1] * b10 + r[2] * b20, r[0] * b01 + r[1] * b11 + r[2] * b21,
+                  r[0] * b02 + r[1] * b12 + r[2] * b22) for r in a)
+
+
+def columns(e1: Vec, e2: Vec, e3: Vec) -> tuple[tuple[float, float, float], ...]:
+    """The matrix with columns e1, e2, e3."""
+    return ((e1[0], e2[0], e3[0]), (e1[1], e2[1], e3[1]), (e1[2], e2[2], e3[2]))
+
+
+def axis_angle(k: Vec, angle: float) -> tuple[tuple[float, float, float], ...]:
+    """Rotation about the unit axis k by angle (radians): c I + s [k]x + (1 - c) k k^T."""
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 - c
+    x, y, z = k
+    return ((c + t * x * x, t * x * y - s * z, t * x * z + s * y),
+            (t * y * x + s * z, c + t * y * y, t * y * z - s * x),
+            (t * z * x - s * y, t * z * y + s * x, c + t * z * z))
+
+
+def between_units(u: Vec, v: Vec) -> tuple[tuple[float, float, float], ...]:
+    """Shortest-arc rotation taking the unit vector u to the direction of v (any length), the
+    rotation of ``live.core.rotations.quat_between``; opposite directions turn by pi about an axis
+    orthogonal to u. Rodrigues with sin = |c|, cos = d: R = d I + [c]x + c c^T / (1 + d)."""
+    v = unit(v)
+    c = cross(u, v)
+    d = dot(u, v)
+    if d < -1.0 + 1e-9:
+        o = cross(u, (1.0, 0.0, 0.0))
+        if norm(o) < 1e-6:
+            o = cross(u, (0.0, 1.0, 0.0))
+        o = unit(o)
+        return tuple(tuple(2.0 * o[i] * o[j] - (1.0 if i == j else 0.0) for j in range(3)) for i in range(3))
+    s = 1.0 / (1.0 + d)
+    return ((d + c[0] * c[0] * s, -c[2] + c[0] * c[1] * s, c[1] + c[0] * c[2] * s),
+            (c[2] + c[1] * c[0] * s, d + c[1] * c[1] * s, -c[0] + c[1] * c[2] * s),
+            (-c[1] + c[2] * c[0] * s, c[0] + c[2] * c[1] * s, d + c[2] * c[2] * s))
+
+
+def frame(a: Vec, b: Vec) -> tuple[tuple[float, float, float], ...]:
+    """Orthonormal frame with columns (a, b orthogonalised against a, their cross product)."""
+    e1 = unit(a)
+    e3 = unit(cross(e1, b))
+    return columns(e1, cross(e3, e1), e3)

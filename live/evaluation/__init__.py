@@ -1,0 +1,1 @@
+"""Accuracy of the skeleton stage and of retargeting against ground truth (``livecap eval``)."""
