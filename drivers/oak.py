@@ -25,7 +25,7 @@ from drivers.oak_settings import OakSettings, apply_stereo_config, oak_settings,
 from live.core.errors import DeviceError, DeviceNotFoundError
 from live.core.frames import DepthFrame, MocapPacket
 from live.core.rotations import matrix_to_quat, quat_multiply
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 log = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ import numpy as np
 from live.core.depth import intrinsics_matrix
 from live.core.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError
 from live.core.frames import DepthFrame
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 log = logging.getLogger(__name__)
 

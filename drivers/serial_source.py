@@ -24,7 +24,7 @@ from drivers.text_lines import LineParser
 from drivers.xbus import XbusConfigurator, XbusParser
 from live.core.errors import DeviceError, UserInputError
 from live.core.frames import MocapPacket
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 PROTOCOLS = ("xbus", "lines")
 DEFAULT_BAUD = {"xbus": 115200, "lines": 115200}

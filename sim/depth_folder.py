@@ -19,7 +19,7 @@ import numpy as np
 from live.core.depth import intrinsics_matrix
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import DepthFrame
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 
 class DepthFolderSource:

@@ -30,7 +30,7 @@ from live.imu.layout import SuitLayout, load_suit_layout
 from live.imu.suit_skeleton import globals_to_locals
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 from sim.imu_model import ImuNoise, ImuTrack, SimpleMotion, simulate_imus
 
 PROTOCOLS = ("xbus", "lines")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from live.core.frames import MocapPacket
 from live.io.session import SessionReader
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 
 class ReplaySource:

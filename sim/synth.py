@@ -29,7 +29,7 @@ from live.core.kinematics import forward_kinematics
 from live.motion.rig_mapping import Motion, load_motion, resample, trim_bind_pose
 from live.core.skeleton import JOINT_INDEX, pelvis_height
 from live.body.skinning import lbs
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
 from sim.room import Room
 

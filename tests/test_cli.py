@@ -12,7 +12,7 @@ import pytest
 from live.app.cli import main
 from live.core.frames import DepthFrame
 from live.io.session import SessionWriter
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 ROOT = Path(__file__).resolve().parent.parent
 K = np.array([[200.0, 0, 32], [0, 200.0, 20], [0, 0, 1]])

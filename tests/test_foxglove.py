@@ -20,7 +20,7 @@ from live.io.results import ResultsWriter
 from live.core.rotations import quat_from_axis_angle, quat_to_matrix
 from live.io.session import SessionReader, SessionWriter
 from live.core.skeleton import BONES, NUM_JOINTS, default_rest_joints
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 T = 12
 T0 = 5_000_000_000

@@ -33,7 +33,7 @@ from live.core.depth import depth_to_points  # noqa: E402
 from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError  # noqa: E402
 from live.core.frames import DepthFrame, MocapPacket  # noqa: E402
 from live.core.rotations import quat_to_matrix  # noqa: E402
-from live.core.sources import Source, StreamInfo  # noqa: E402
+from live.core.protocols import Source, StreamInfo  # noqa: E402
 
 
 # ---------------------------------------------------------------- settings

@@ -9,7 +9,7 @@ import pytest
 from live.core.errors import DeviceError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
 from live.pipeline.runner import Pipeline
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 
 class ListSource:

@@ -19,7 +19,7 @@ from drivers.realsense import (  # noqa: E402
 )
 from live.core.depth import depth_to_points  # noqa: E402
 from live.core.errors import DeviceError, DeviceNotFoundError, FormatError, UserInputError  # noqa: E402
-from live.core.sources import Source  # noqa: E402
+from live.core.protocols import Source  # noqa: E402
 
 W, H = 64, 48
 

@@ -15,7 +15,7 @@ from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2
 from live.core.errors import DeviceError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.rotations import quat_normalize
-from live.core.sources import Source
+from live.core.protocols import Source
 
 WAIT = 10.0  # generous upper bound for events; tests normally finish far sooner
 

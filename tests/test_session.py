@@ -9,7 +9,7 @@ from live.io import codec
 from live.core.errors import SessionError, UserInputError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
 from live.io.session import SessionReader, SessionWriter
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 K = np.array([[400.0, 0, 320], [0, 400.0, 200], [0, 0, 1]])
 

@@ -176,6 +176,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Which module holds each command's ``cmd_<name>`` function (imported when the command runs).
+COMMAND_MODULES = {"demo": "commands", "replay": "commands", "render": "commands", "record": "commands",
+                   "run": "commands", "export": "session_commands", "info": "session_commands",
+                   "devices": "device_commands", "calibrate": "device_commands", "synth": "tool_commands",
+                   "eval": "tool_commands", "train": "tool_commands"}
+
+
+def _command(name: str):
+    import importlib
+
+    module = importlib.import_module(f"live.app.{COMMAND_MODULES[name]}")
+    return getattr(module, f"cmd_{name.replace('-', '_')}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -183,10 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USER_ERROR
-    from live.app import commands
-
     try:
-        return int(getattr(commands, f"cmd_{args.command}")(args) or 0)
+        return int(_command(args.command)(args) or 0)
     except LivecapError as exc:
         print(f"livecap {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR

@@ -1,26 +1,14 @@
-"""One function per CLI command; each takes the parsed arguments and returns an exit code."""
+"""The pipeline commands (demo, replay, render, record, run): each takes the parsed arguments and
+returns an exit code. The other commands are in session_commands, device_commands and tool_commands."""
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 from live.app.running import DEMO_SESSION, count_trigger_frames, parse_speed, run_pipeline, write_stats
+from live.app.sources import open_replay, open_source
 from live.core.errors import UserInputError
-
-
-def _replay_source(target: str, speed: float | None):
-    path = Path(target)
-    if path.is_dir():
-        from sim.depth_folder import DepthFolderSource
-
-        return DepthFolderSource(path, speed=speed)
-    if not path.exists():
-        raise UserInputError(f"no such session or folder: {path}")
-    from sim.replay import ReplaySource
-
-    return ReplaySource(path, speed=speed)
 
 
 def _run_options(args, out: Path, video: Path | None = None):
@@ -35,7 +23,7 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     from live.app.assemble import build
 
     speed = parse_speed(args.speed)
-    source = _replay_source(target, speed)
+    source = open_replay(target, speed=speed)
     out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
     stages, sinks, parts = build(_run_options(args, out, video))
@@ -123,8 +111,6 @@ def cmd_replay(args) -> int:
 
 
 def _open_sources(specs: list[str]):
-    from live.core.sources import open_source
-
     return [open_source(s) for s in specs]
 
 
@@ -149,100 +135,6 @@ def cmd_run(args) -> int:
     return 0
 
 
-def cmd_export(args) -> int:
-    if args.foxglove is not None:
-        from live.io.foxglove import export_foxglove
-
-        res = export_foxglove(args.session, args.foxglove, results_dir=args.results, max_points=args.max_points)
-        print(f"livecap export: {sum(res.messages.values())} Foxglove messages -> {res.path}")
-        if res.skipped:
-            print(f"  not exported (no Foxglove schema): {res.skipped}")
-        if res.error:
-            print(f"livecap export: {res.error}", file=sys.stderr)
-        return 0
-    if args.out is None:
-        raise UserInputError("export needs --out DIR (npz files) or --foxglove OUT.mcap")
-    from live.io.export import export_session
-
-    written, damage = export_session(args.session, args.out)
-    for p in written:
-        print(p)
-    if damage:
-        print(f"livecap export: {damage}", file=sys.stderr)
-    return 0
-
-
-def cmd_info(args) -> int:
-    from live.io.session import SessionReader
-
-    reader = SessionReader(args.session)
-    counts: dict[str, int] = {}
-    first: dict[str, int] = {}
-    last: dict[str, int] = {}
-    for stream, frame in reader.frames():
-        counts[stream.name] = counts.get(stream.name, 0) + 1
-        first.setdefault(stream.name, frame.t_ns)
-        last[stream.name] = frame.t_ns
-    info = reader.info
-    doc = {
-        "path": str(args.session), "livecap_version": info.version, "start_wall_time_ns": info.start_wall_time_ns,
-        "streams": [{"name": s.name, "kind": s.kind, "messages": counts.get(s.name, 0),
-                     "duration_s": round((last.get(s.name, 0) - first.get(s.name, 0)) / 1e9, 3), "meta": s.meta}
-                    for s in info.streams],
-        "extra": info.extra, "attachments": sorted(reader.attachments), "damage": reader.error,
-    }
-    if args.json:
-        print(json.dumps(doc, indent=2))
-        return 0
-    print(f"{args.session}: livecap {info.version or '?'} session")
-    for s in doc["streams"]:
-        print(f"  {s['kind']:<6} {s['name']:<12} {s['messages']:>7} messages  {s['duration_s']:8.2f} s")
-    if doc["attachments"]:
-        print(f"  attachments: {', '.join(doc['attachments'])}")
-    if reader.error:
-        print(f"  damaged: {reader.error}")
-    return 0
-
-
-def cmd_devices(args) -> int:
-    from drivers.discovery import format_device_list, list_devices
-
-    print(format_device_list(list_devices()))
-    return 0
-
-
-def cmd_synth(args) -> int:
-    import math
-
-    from sim.synth import CameraPlacement, SynthOptions, synthesize
-
-    if not Path(args.motion).is_file():
-        raise UserInputError(f"no such motion file: {args.motion}")
-    opts = SynthOptions(motion=args.motion, body=args.body, camera=args.camera, seconds=args.seconds,
-                        fps=args.fps, seed=args.seed, imu=args.imu, start_s=args.start, noise=not args.no_noise,
-                        max_range_m=args.max_range,
-                        placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw)))
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="synth", unit="frame", leave=False, file=sys.stderr, disable=None)
-
-    def progress(done: int, total: int) -> None:
-        if bar is not None:
-            bar.total = total
-            bar.update(done - bar.n)
-
-    try:
-        summary = synthesize(opts, args.out, progress)
-    finally:
-        if bar is not None:
-            bar.close()
-    print(f"livecap synth: {summary['frames']} frames at {summary['fps']:g} fps of {Path(args.motion).name} "
-          f"on {summary['body']} ({summary['camera']}) -> {args.out}")
-    return 0
-
-
 def cmd_render(args) -> int:
     import tempfile
 
@@ -251,86 +143,4 @@ def cmd_render(args) -> int:
     with tempfile.TemporaryDirectory(prefix="livecap-render-") as tmp:
         stats = _replay(args.session, args, Path(tmp), video=args.out)
     print(f"livecap render: {stats['frames']} frames -> {args.out}")
-    return 0
-
-
-def cmd_eval(args) -> int:
-    import json as _json
-
-    if args.what == "skeleton":
-        from live.evaluation.skeleton import evaluate_sessions, format_report
-
-        for path in args.sessions:
-            if not path.is_file():
-                raise UserInputError(f"no such session: {path}")
-        report = evaluate_sessions([str(p) for p in args.sessions], model_path=args.model,
-                                   compare_baseline=args.compare == "baseline", threads=args.threads, lag=args.lag)
-    else:
-        from live.body.library import load_body
-        from live.evaluation.retarget import evaluate_retarget, format_report
-
-        if not Path(args.motion).is_file():
-            raise UserInputError(f"no such motion file: {args.motion}")
-        report = evaluate_retarget(args.motion, load_body(args.source_body), load_body(args.target_body),
-                                   from_=args.from_, retarget=args.retarget, max_frames=args.max_frames,
-                                   lag=args.lag)
-        if report.get("bind_pose_frames_cut") and not args.json:
-            print(f"{Path(args.motion).name}: its first {report['bind_pose_frames_cut']} frame(s), the exporter's "
-                  "bind pose, cut (docs/motion.md)")
-    print(_json.dumps(report, indent=2, default=str) if args.json else format_report(report))
-    return 0
-
-
-_TRAINERS = {"skeleton": "models.train.train_skeleton", "skeleton-temporal": "models.train.train_skeleton_temporal",
-             "retarget": "models.train.train_retarget",
-             "skinning": "models.train.train_skinning", "bodies": "models.train.export_bodies"}
-
-
-def cmd_train(args) -> int:
-    import importlib
-    import importlib.util
-
-    if importlib.util.find_spec("torch") is None:
-        raise UserInputError("training needs the train extra: pip install -e '.[train]'")
-    module = importlib.import_module(_TRAINERS[args.what])
-    extra = [a for a in args.args if a != "--"]
-    if args.quick:
-        extra.append("--quick")
-    module.main(extra)
-    return 0
-
-
-def cmd_calibrate(args) -> int:
-    import threading
-
-    from live.imu.calibration import CalibrationCollector
-    from live.imu.layout import load_suit_layout
-    from live.core.skeleton import default_rest_joints
-    from live.core.sources import open_source
-
-    source = open_source(args.source)
-    collector = CalibrationCollector(load_suit_layout(args.layout), args.pose,
-                                     default_rest_joints(args.height), hold_s=2.0)
-    stop = threading.Event()
-    found = []
-
-    def emit(packet) -> None:
-        if getattr(packet, "decoded", False) and not found:
-            cal = collector.feed(packet)
-            if cal is not None:
-                found.append(cal)
-                stop.set()
-
-    print(f"livecap calibrate: hold a {args.pose} still for 2 s ...", file=sys.stderr)
-    timer = threading.Timer(args.timeout, stop.set)
-    timer.daemon = True
-    timer.start()
-    try:
-        source.run(emit, stop)
-    finally:
-        timer.cancel()
-    if not found:
-        raise UserInputError(f"no still {args.pose} held for 2 s within {args.timeout:g} s")
-    found[0].save(args.out)
-    print(f"livecap calibrate: saved {args.out}")
     return 0

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from live.io.session import SessionReader
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 
 def _stack(values: list, dtype, shape: tuple[int, ...]) -> np.ndarray:

@@ -27,7 +27,7 @@ from live import __version__
 from live.io import codec
 from live.core.errors import SessionError, UserInputError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
-from live.core.sources import StreamInfo
+from live.core.protocols import StreamInfo
 
 PROFILE = "livecap"
 SESSION_METADATA = "livecap.session"

@@ -20,37 +20,17 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
 from live.core.frames import DepthFrame, FrameResult, GroundTruth, MocapPacket
 from live.core.ring import ObjectRing, RingClosedError, RingFullError
 from live.io.session import SessionWriter
-from live.core.sources import Source
+from live.core.protocols import Sink, Source, Stage
 from live.pipeline.stats import LatencyRecorder, StageStats
 
 log = logging.getLogger("livecap.pipeline")
 
 MODES = ("every", "latest")
 _POLL_S = 0.05
-
-
-class Stage(Protocol):
-    name: str
-
-    def process(self, result: FrameResult) -> bool:
-        """Fill this stage's part of ``result``; True when it produced output."""
-
-    def observe(self, frame: object) -> None:
-        """See a side frame (mocap packet, ground truth) in stream order."""
-
-    # Optional: ``drain() -> list[FrameResult]``, called once the sources have ended: results the
-    # stage still holds (a lagging skeleton model's last frames), passed on like any frame's.
-
-
-class Sink(Protocol):
-    def send(self, result: FrameResult) -> None: ...
-
-    def close(self) -> None: ...
 
 
 @dataclass

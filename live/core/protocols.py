@@ -1,9 +1,9 @@
-"""The Source protocol: anything that produces frames into the pipeline.
+"""The protocols that cross layers: Source (anything that produces frames), Stage (fills its part
+of a FrameResult) and Sink (consumes results).
 
 Drivers (OAK-D, RealSense, serial suits) and simulated backends (session replay, depth folders,
-synthetic clips) all implement it, so live use and tests share one path. A source string names
-one (``oak``, ``serial:/dev/ttyUSB0:xbus``, ``replay:S.mcap``, ``folder:DIR``, ``sim:clip.bvh``);
-``open_source`` turns the string into an object.
+synthetic clips) all implement Source, so live use and tests share one path; the source registry
+(live/app/sources.py) turns a source string into one.
 """
 
 from __future__ import annotations
@@ -11,6 +11,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, runtime_checkable
+
+from live.core.frames import FrameResult
 
 #: Stream kinds a source may emit.
 STREAM_KINDS = ("depth", "serial", "imu", "gt")
@@ -55,35 +57,23 @@ class Source(Protocol):
     def counters(self) -> dict[str, int]: ...
 
 
-def open_source(text: str, *, speed: float | None = 1.0) -> Source:
-    """A source object for a source string (see drivers.source_url for the accepted forms).
+class Stage(Protocol):
+    """A pipeline stage. Optional: ``counters`` (event counts, reported in stats.json) and
+    ``drain() -> list[FrameResult]``, called once the sources have ended: results the stage still
+    holds (a lagging skeleton model's last frames), passed on like any frame's."""
 
-    ``speed`` applies to replayed sources (replay, folder, sim): 1.0 is recorded timing, None
-    as fast as the pipeline takes frames.
-    """
-    from drivers.source_url import open_camera_source, parse_source
+    name: str
 
-    spec = parse_source(text)
-    if spec.kind in ("oak", "realsense", "realsense-bag"):
-        return open_camera_source(spec)
-    if spec.kind == "serial":
-        from drivers.serial_source import SerialSource
+    def process(self, result: FrameResult) -> bool:
+        """Fill this stage's part of ``result``; True when it produced output."""
 
-        opts = spec.options
-        kwargs = {"baud": int(opts["baud"])} if "baud" in opts else {}
-        return SerialSource(spec.target, protocol=opts.get("protocol", "xbus"), **kwargs)
-    if spec.kind == "replay":
-        from sim.replay import ReplaySource
+    def observe(self, frame: object) -> None:
+        """See a side frame (mocap packet, ground truth) in stream order."""
 
-        return ReplaySource(spec.target, speed=speed)
-    if spec.kind == "folder":
-        from sim.depth_folder import DepthFolderSource
 
-        return DepthFolderSource(spec.target, speed=speed)
-    if spec.kind == "sim":
-        from sim.synth import SimulatedSource
+class Sink(Protocol):
+    """A consumer of results; ``send`` never raises into the pipeline (it counts its own errors)."""
 
-        return SimulatedSource.from_spec(spec.target, spec.options, speed=speed)
-    from live.core.errors import UserInputError
+    def send(self, result: FrameResult) -> None: ...
 
-    raise UserInputError(f"source kind {spec.kind!r} cannot be opened here")
+    def close(self) -> None: ...
