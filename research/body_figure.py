@@ -1,10 +1,11 @@
 """Picture of the body library, side by side in the T-pose (docs/img/bodies.png).
 
-    python -m research.body_figure
+    python -m research.body_figure [--out docs/img/bodies.png]
 """
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 import cv2
@@ -13,7 +14,7 @@ import numpy as np
 from live.body.library import list_presets, load_body
 from live.outputs.raster import rasterize, shade_lambert, vertex_normals
 
-OUT = Path(__file__).resolve().parent.parent / "docs" / "img" / "bodies.png"
+OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "bodies.png"  # research/ is in the checkout root
 
 
 def bodies_figure(out: Path = OUT, names: list[str] | None = None, cell: tuple[int, int] = (260, 300)) -> Path:
@@ -43,5 +44,11 @@ def bodies_figure(out: Path = OUT, names: list[str] | None = None, cell: tuple[i
     return out
 
 
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="python -m research.body_figure", description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, default=OUT)
+    print(bodies_figure(p.parse_args(argv).out))
+
+
 if __name__ == "__main__":
-    print(bodies_figure())
+    main()

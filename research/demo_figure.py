@@ -1,17 +1,17 @@
 """The README's demo picture: one frame of the video `livecap demo` writes.
 
-    python -m research.demo_figure     # -> docs/img/demo_frame.png
+    python -m research.demo_figure [--frame 90] [--out docs/img/demo_frame.png]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import tempfile
 from pathlib import Path
 
 import cv2
 
-OUT = Path(__file__).resolve().parent.parent / "docs" / "img" / "demo_frame.png"
+OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "demo_frame.png"  # research/ is in the checkout root
 
 
 def demo_frame(out: Path = OUT, frame: int = 90) -> Path:
@@ -31,5 +31,13 @@ def demo_frame(out: Path = OUT, frame: int = 90) -> Path:
     return out
 
 
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(prog="python -m research.demo_figure", description=__doc__.splitlines()[0])
+    p.add_argument("--frame", type=int, default=90, help="frame of demo.mp4 (default 90)")
+    p.add_argument("--out", type=Path, default=OUT)
+    args = p.parse_args(argv)
+    print(demo_frame(args.out, args.frame))
+
+
 if __name__ == "__main__":
-    print(demo_frame(frame=int(sys.argv[1]) if len(sys.argv) > 1 else 90))
+    main()

@@ -1,6 +1,6 @@
 """Pictures of the simulator for the docs: ``python -m research.figures [--out docs/img/virtual_depth.png]``.
 
-virtual_depth_figure renders one frame of a real CMU clip (from ../shared/data/bvh) with the
+virtual_depth_figure renders one frame of a real CMU clip (from the shared clips) with the
 virtual depth camera, and writes ideal depth beside measured (noisy) depth with the ground-truth
 skeleton projected over it. The body is the body library's default skinned with the clip when
 live.body.library / live.body.skinning exist, else capsules around the clip's joints.
@@ -17,12 +17,12 @@ import numpy as np
 from live.core.kinematics import forward_kinematics
 from live.motion.rig_mapping import load_motion
 from live.core.skeleton import BONES, pelvis_height
+from live.core import assets
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
 from sim.room import Box, Room, capsule_body
 
-ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_CLIP = ROOT.parent / "shared" / "data" / "bvh" / "cc_002_01.bvh"
-DEFAULT_OUT = ROOT / "docs" / "img" / "virtual_depth.png"
+DEFAULT_CLIP = assets.bvh_dir() / "cc_002_01.bvh"
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "virtual_depth.png"  # from the checkout root
 
 
 def posed_subject(clip: Path, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
@@ -90,13 +90,13 @@ def virtual_depth_figure(out: Path = DEFAULT_OUT, clip: Path = DEFAULT_CLIP, fra
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description="Render the docs' virtual depth camera picture.")
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m research.figures", description="Render the docs' virtual depth camera picture.")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument("--clip", type=Path, default=DEFAULT_CLIP)
     ap.add_argument("--frame", type=int, default=60)
     ap.add_argument("--preset", default="oak-d")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     print(virtual_depth_figure(args.out, args.clip, args.frame, args.preset))
 
 

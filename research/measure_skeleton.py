@@ -19,23 +19,9 @@ import shlex
 import sys
 from pathlib import Path
 
-import numpy as np
+from live.core import assets
 
-WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "weights"
 KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "pck_10cm", "upper_body_mpjpe_mm")
-
-
-def measure(path: Path, data: dict[str, dict], num_points: int) -> dict:
-    """The skeleton card's three validation results of the ONNX file ``path`` (as train_skeleton)."""
-    from models.skeleton.runtime import SkeletonRegressor
-    from models.train.train_skeleton import split_results
-
-    reg = SkeletonRegressor(path)
-    out = {}
-    for split, d in data.items():
-        pts = d["points"][:, :num_points]
-        out.update(split_results(split, np.concatenate([reg(pts[a:a + 256]) for a in range(0, len(pts), 256)]), d))
-    return out
 
 
 def validation_sets(n_val: int, workers: int = 2) -> dict[str, dict]:
@@ -71,7 +57,7 @@ def temporal_results(regressor: Path, workers: int = 2) -> dict[Path, dict]:
 
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(prog="python -m research.measure_skeleton", description=__doc__.splitlines()[0])
-    p.add_argument("--model", type=Path, default=WEIGHTS / "skeleton.onnx")
+    p.add_argument("--model", type=Path, default=assets.weight("skeleton.onnx"))
     p.add_argument("--val", type=int, default=1200, help="validation samples (the card's sets: 1200)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--temporal", action="store_true", help="also the shipped temporal models behind it")
@@ -79,7 +65,9 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     card_path = args.model.with_suffix(".json")
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
-    results = measure(args.model, validation_sets(args.val, args.workers), int(card.get("num_points", 256)))
+    from models.train.train_skeleton import onnx_results
+
+    results = onnx_results(args.model, validation_sets(args.val, args.workers), int(card.get("num_points", 256)))
     for split, m in results.items():
         before = card.get("metrics", {}).get(split, {})
         print(f"{split:11s} " + "  ".join(f"{k} {before.get(k, '-')} -> {m[k]}" for k in KEYS), flush=True)

@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
     from live.core.skeleton import JOINT_NAMES
     from sim.skeleton_data import BVH_DIR, VAL_SUBJECTS, list_clips, split_bodies
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m research.measure_skeleton_noise", description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--model", default=None, help="skeleton .onnx (default: the shipped one)")
     ap.add_argument("--lag", type=int, default=0, help="temporal model lag in frames (default 0)")

@@ -15,9 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-BVH_DIR = ROOT.parent / "shared" / "data" / "bvh"
-DEFAULT_OUT = ROOT / "docs" / "img" / "temporal_lag.png"
+from live.core import assets
+
+BVH_DIR = assets.bvh_dir()
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "temporal_lag.png"  # from the checkout root
 COLOURS = {"truth": (40, 40, 40), "per-frame regressor": (80, 160, 240), "online temporal (default)": (200, 120, 40),
            "lag 2 (67 ms later)": (60, 170, 60)}
 
@@ -110,9 +111,9 @@ def temporal_figure(clip: Path, body: str = "adult_male_average", joint: str = "
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m research.temporal_figure", description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    p.add_argument("--clip", default="mb_12_01.bvh", help="a clip of ../shared/data/bvh")
+    p.add_argument("--clip", default="mb_12_01.bvh", help="a clip of the shared CMU clips")
     p.add_argument("--body", default="adult_male_average")
     p.add_argument("--joint", default="left_wrist")
     p.add_argument("--frames", type=int, default=150)

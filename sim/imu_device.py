@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from drivers import xbus
-from drivers.layouts import load_layout
 from drivers.text_lines import encode_line
+from live.imu.layout import load_suit_layout
 from sim.imu_model import ImuNoise, ImuTrack, random_mounting, simulate_imus
 
 PROTOCOLS = ("xbus", "lines")
@@ -77,7 +77,7 @@ class SimulatedSuit:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
         if xbus_addressing not in ("bid", "device_id"):
             raise ValueError("xbus_addressing is 'bid' or 'device_id'")
-        layout_map = layout if isinstance(layout, dict) else load_layout(layout)
+        layout_map = layout if isinstance(layout, dict) else load_suit_layout(layout).as_dict()
         mounting = random_mounting(len(layout_map), mounting_seed)
         self.track: ImuTrack = simulate_imus(motion, layout_map, mounting=mounting, noise=noise, seed=seed)
         self.protocol = protocol

@@ -82,7 +82,7 @@ def split_bodies(presets: list[str], split: str) -> list[str]:
 
 
 #: Anny phenotype ranges of on-demand training bodies: those the body library spans
-#: (models/train/export_bodies.py LIBRARY), so that they are people, from a 4-year-old up.
+#: (models/bodies/library.json), so that they are people, from a 4-year-old up.
 ANNY_RANGES = {"gender": (0.0, 1.0), "age": (0.16, 1.0), "muscle": (0.2, 1.0), "weight": (0.05, 1.0),
                "height": (0.15, 0.6), "proportions": (0.35, 0.8)}
 #: A drawn phenotype this close to a held-out preset's (in every key) is drawn again: the
@@ -93,10 +93,10 @@ ANNY_HOLD_OUT_MARGIN = 0.15
 def anny_phenotypes(n: int, seed: int = 0) -> list[str]:
     """``n`` random training phenotypes as ``anny:...`` body specs (deterministic per seed),
     none within ANNY_HOLD_OUT_MARGIN of a held-out preset's phenotype in all keys."""
-    from live.body.library import ANNY_KEYS, format_anny_spec, list_presets
-    from models.train.export_bodies import LIBRARY
+    from live.body.library import ANNY_KEYS, format_anny_spec, list_presets, preset_phenotypes
 
-    held_out = [LIBRARY[name] for name in split_bodies(list_presets(), "val") if name in LIBRARY]
+    phenotypes = preset_phenotypes()
+    held_out = [phenotypes[name] for name in split_bodies(list_presets(), "val") if name in phenotypes]
     rng = np.random.default_rng([seed, 7411])
     specs: list[str] = []
     while len(specs) < n:

@@ -11,18 +11,18 @@ import numpy as np
 import pytest
 import serial
 
-from drivers.layouts import DEFAULT_LAYOUT, load_layout, parse_layout
 from drivers.serial_source import SerialSource, decode_packet_bytes
 from drivers.xbus import XbusConfigurator, XbusParser
 from live.core.errors import DeviceError, FormatError
 from live.core.kinematics import global_rotations
 from live.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
 from live.core.skeleton import JOINT_INDEX
+from live.imu.layout import DEFAULT_LAYOUT, load_suit_layout, parse_suit_layout
 from sim.imu_device import DEVICE_ID_BASE, SimulatedSuit
 from sim.imu_model import GRAVITY, ImuNoise, SimpleMotion, random_smooth_motion, simulate_imus
 
 WAIT = 15.0
-LAYOUT = load_layout()
+LAYOUT = load_suit_layout().as_dict()
 MOTION = random_smooth_motion(60, fps=60.0, seed=3)
 
 
@@ -40,15 +40,15 @@ def test_default_layout_has_15_sensors():
 
 
 def test_layout_aliases_and_errors(tmp_path):
-    assert parse_layout({"sensors": {"7": "left_forearm", "1": "chest"}}) == {
+    assert parse_suit_layout({"sensors": {"7": "left_forearm", "1": "chest"}}).as_dict() == {
         1: JOINT_INDEX["spine3"], 7: JOINT_INDEX["left_elbow"]}
     for bad in ({}, {"sensors": {}}, {"sensors": {"x": "pelvis"}}, {"sensors": {"1": "tail"}}):
         with pytest.raises(FormatError):
-            parse_layout(bad)
+            parse_suit_layout(bad)
     p = tmp_path / "bad.json"
     p.write_text("{nope")
     with pytest.raises(FormatError, match="bad.json"):
-        load_layout(p)
+        load_suit_layout(p)
 
 
 def test_model_orientations_rates_and_specific_force():

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.body.library import ANNY_KEYS, format_anny_spec, list_presets, parse_anny_spec
-from models.train.export_bodies import LIBRARY
-from sim.skeleton_data import (ANNY_HOLD_OUT_MARGIN, ANNY_RANGES, VAL_SUBJECTS, anny_phenotypes, plan_jobs,
-                               split_bodies)
+from live.body.library import ANNY_KEYS, format_anny_spec, list_presets, parse_anny_spec, preset_phenotypes
+from sim.skeleton_data import ANNY_HOLD_OUT_MARGIN, ANNY_RANGES, VAL_SUBJECTS, anny_phenotypes, plan_jobs, split_bodies
 
 
 def test_anny_phenotypes_are_deterministic_people_away_from_the_held_out_bodies():
     specs = anny_phenotypes(200, seed=3)
     assert specs == anny_phenotypes(200, seed=3) and specs != anny_phenotypes(200, seed=4)
     assert len(set(specs)) == len(specs)
-    held_out = [LIBRARY[n] for n in split_bodies(list_presets(), "val")]
+    phenotypes = preset_phenotypes()
+    held_out = [phenotypes[n] for n in split_bodies(list_presets(), "val")]
     for spec in specs:
         ph = parse_anny_spec(spec)  # a valid body spec, in its canonical form
         assert format_anny_spec(ph) == spec

@@ -3,7 +3,8 @@
 A body spec is a preset name (``list_presets()`` and the aliases ``performer`` / ``default``;
 files in models/bodies, made by ``python -m models.train.export_bodies``), a path to a body file
 (.npz, contract in CONVENTIONS.md), or ``anny:gender=0.3,age=0.6,...`` built on demand with the
-``train`` extra.
+``train`` extra (live.body.anny). models/bodies/library.json is the one table of the presets'
+phenotypes and the aliases: the exporter builds the bodies it lists.
 """
 
 from __future__ import annotations
@@ -12,43 +13,21 @@ import functools
 import io
 import json
 import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from live.body.anny import ANNY_KEYS
+from live.body.anny import build_body as build_anny_body
+from live.body.body import Body
+from live.core import assets
 from live.core.errors import FormatError, UserInputError
 from live.core.skeleton import NUM_JOINTS, PARENTS
-from live.core import assets
 
 BODIES_DIR = assets.bodies_dir()
 
-#: Anny's phenotype parameters, each in [0, 1] (gender 0 = male, 1 = female; age 0.75 = young
-#: adult, 1 = old; the others 0.5 = average); a missing one takes 0.5.
-ANNY_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
-
 #: Array names of a body file, in the order save_body writes them.
 _FIELDS = ("vertices", "faces", "rest_joints", "weights", "parents", "name", "phenotype")
-
-
-@dataclass(frozen=True, eq=False)
-class Body:
-    """vertices (V,3) float32 T-pose mesh, y up, feet on y=0, facing +z; faces (F,3) int32;
-    rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
-    phenotype: the Anny parameters it was made from, or None. Arrays of a loaded body are
-    read-only (load_body shares them between callers)."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    rest_joints: np.ndarray
-    weights: np.ndarray
-    parents: np.ndarray
-    name: str
-    phenotype: dict | None = None
-
-    @property
-    def height(self) -> float:
-        return float(self.vertices[:, 1].max() - self.vertices[:, 1].min())
 
 
 def _library() -> dict:
@@ -64,6 +43,19 @@ def list_presets() -> list[str]:
 def aliases() -> dict[str, str]:
     """Alias -> preset: ``performer`` (synthetic sessions' default body), ``default`` (demo avatar)."""
     return dict(_library().get("aliases", {}))
+
+
+def preset_phenotypes() -> dict[str, dict[str, float]]:
+    """Preset name -> its Anny phenotype ({key: value} for ANNY_KEYS), in library.json's order.
+
+    Values are in [0, 1] as Anny defines them: gender 0 is male and 1 female; age blends Anny's
+    newborn/baby/child/young/old targets at -1/3, 0, 1/3, 2/3, 1, which Anny's own calibration
+    reads as 4 y at 0.215, 11 y at 0.415, 16 y at 0.67, 18 y at 0.77, 64 y at 0.83 (the names
+    say what the bodies look like, e.g. child_boy_4y is 1.05 m tall). Renaming or adding bodies
+    changes the train/val body splits of the learned models (sim.skeleton_data.split_bodies):
+    retrain them after such a change."""
+    return {name: {k: float(v) for k, v in entry["phenotype"].items()}
+            for name, entry in _library().get("bodies", {}).items()}
 
 
 def parse_anny_spec(spec: str) -> dict[str, float]:
@@ -184,21 +176,11 @@ def body_from_npz_bytes(data: bytes, source: str = "body.npz") -> Body:
     return body_from_arrays(_npz_arrays(io.BytesIO(data), source), source=source)
 
 
-def _build_anny(spec: str) -> Body:
-    phenotype = parse_anny_spec(spec)  # bad specs fail the same way with or without torch
-    import importlib.util
-
-    # Look for the train extra without importing it here; export_bodies imports it when building.
-    if any(importlib.util.find_spec(m) is None for m in ("torch", "anny")):
-        raise UserInputError("building an anny: body needs the train extra: pip install 'livecap[train]'")
-    from models.train.export_bodies import build_body
-    return build_body(phenotype, format_anny_spec(phenotype))
-
-
 @functools.lru_cache(maxsize=32)
 def _load_cached(spec: str) -> Body:
     if spec.startswith("anny:"):
-        return _build_anny(spec)
+        phenotype = parse_anny_spec(spec)  # a bad spec fails the same way with or without the train extra
+        return build_anny_body(phenotype, format_anny_spec(phenotype))
     name = aliases().get(spec, spec)
     preset = BODIES_DIR / f"{name}.npz"
     if "/" not in spec and not spec.endswith(".npz") and preset.is_file():

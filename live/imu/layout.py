@@ -1,14 +1,15 @@
-"""Suit layouts for the IMU -> skeleton path: which segment each sensor id is strapped to.
+"""Suit layouts: which segment each IMU sensor id is strapped to (the one layout parser).
 
-The file format and the segment names live in drivers/layouts (one place):
-``{"name": ..., "sensors": {"<id>": "<segment>", ...}}``, a segment being a canonical joint
-name (``left_elbow`` = the left forearm, the segment that joint's global rotation moves) or an
-alias (``chest``, ``left_forearm``, ...). Partial suits simply list fewer sensors.
+A layout file is JSON ``{"name": ..., "sensors": {"<id>": "<segment>", ...}}`` (optional
+"description"), a segment being a canonical joint name (``left_elbow`` = the left forearm, the
+segment that joint's global rotation moves) or one of SEGMENT_ALIASES (``chest``,
+``left_forearm``, ...). Partial suits simply list fewer sensors. The shipped layouts are in
+drivers/layouts (``full_body.json``: 15 sensors).
 
-This module adds one optional key: ``"mounting": {"<id>": [w, x, y, z]}``, the nominal
-sensor-in-segment rotation of each pocket (identity when absent: the sensor's axes line up with
-the segment's axes in the canonical T-pose). Calibration only needs it to find the performer's
-heading from a single static pose; the exact mounting comes out of the calibration itself.
+One optional key: ``"mounting": {"<id>": [w, x, y, z]}``, the nominal sensor-in-segment rotation
+of each pocket (identity when absent: the sensor's axes line up with the segment's axes in the
+canonical T-pose). Calibration only needs it to find the performer's heading from a single
+static pose; the exact mounting comes out of the calibration itself.
 """
 
 from __future__ import annotations
@@ -18,10 +19,23 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.layouts import DEFAULT_LAYOUT, parse_layout
+from live.core import assets
 from live.core.errors import FormatError
 from live.core.rotations import quat_normalize
-from live.core.skeleton import JOINT_NAMES
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
+
+DEFAULT_LAYOUT = assets.layouts_dir() / "full_body.json"
+
+#: Segment names people use for suits -> canonical joint.
+SEGMENT_ALIASES: dict[str, str] = {
+    "chest": "spine3", "sternum": "spine3",
+    "left_upper_arm": "left_shoulder", "right_upper_arm": "right_shoulder",
+    "left_forearm": "left_elbow", "right_forearm": "right_elbow",
+    "left_hand": "left_wrist", "right_hand": "right_wrist",
+    "left_thigh": "left_hip", "right_thigh": "right_hip",
+    "left_shin": "left_knee", "right_shin": "right_knee",
+    "left_foot_segment": "left_ankle", "right_foot_segment": "right_ankle",
+}
 
 
 @dataclass(frozen=True)
@@ -47,7 +61,7 @@ class SuitLayout:
         return {int(s): i for i, s in enumerate(self.sensors)}
 
     def as_dict(self) -> dict[int, int]:
-        """{sensor id: joint index}, the form sim.imu_model and drivers.layouts use."""
+        """{sensor id: joint index}, the form sim.imu_model uses."""
         return {int(s): int(j) for s, j in zip(self.sensors, self.joints)}
 
     def to_json(self) -> dict:
@@ -60,9 +74,26 @@ class SuitLayout:
         return obj
 
 
+def _sensor_joints(obj: object, path: str | None) -> dict[int, int]:
+    """The "sensors" of a layout object -> {sensor id: joint index}, in ascending sensor id order."""
+    if not isinstance(obj, dict) or not isinstance(obj.get("sensors"), dict) or not obj["sensors"]:
+        raise FormatError('a layout is {"sensors": {"<id>": "<segment>", ...}}', path=path)
+    out: dict[int, int] = {}
+    for key, segment in obj["sensors"].items():
+        try:
+            sensor = int(key)
+        except ValueError:
+            raise FormatError(f"sensor id {key!r} is not an integer", path=path) from None
+        name = SEGMENT_ALIASES.get(segment, segment) if isinstance(segment, str) else None
+        if name not in JOINT_INDEX:
+            raise FormatError(f"sensor {sensor}: unknown segment {segment!r}", path=path)
+        out[sensor] = JOINT_INDEX[name]
+    return dict(sorted(out.items()))
+
+
 def parse_suit_layout(obj: object, *, path: str | None = None) -> SuitLayout:
     """A layout object (as in a layout file) -> SuitLayout."""
-    mapping = parse_layout(obj, path=path)
+    mapping = _sensor_joints(obj, path)
     sensors = np.array(list(mapping), dtype=np.int32)
     joints = np.array([mapping[s] for s in mapping], dtype=np.int64)
     mounting = np.zeros((len(sensors), 4))
@@ -85,8 +116,8 @@ def parse_suit_layout(obj: object, *, path: str | None = None) -> SuitLayout:
 
 
 def load_suit_layout(spec: str | Path | dict | SuitLayout | None = None) -> SuitLayout:
-    """A layout from a file path, a layout object, a SuitLayout, or None (the 15-sensor full
-    body of drivers/layouts/full_body.json)."""
+    """A layout from a file path, a layout object, a SuitLayout, a {sensor id: joint index}
+    dict, or None (the 15-sensor full body of drivers/layouts/full_body.json)."""
     if isinstance(spec, SuitLayout):
         return spec
     if isinstance(spec, dict):

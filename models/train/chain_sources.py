@@ -1,6 +1,6 @@
 """What the learned retargeter really sees live: source skeletons from the whole depth chain.
 
-    python -m models.train.chain_sources [--runs-per-clip 2] [--frames 300] [--workers 2]
+Used by ``train_retarget --chain-share``; ``python -m research.chain_sources`` runs it alone.
 
 Why: the depth skeleton stage's error is not the AR(1) noise of ``train_retarget.depth_like_noise``;
 it depends on the pose and the view (a wrist behind the body, a foot at the image edge) and has
@@ -18,7 +18,6 @@ set (96 clips x 2 runs of up to 300 frames: 192 runs, 35,424 frames) takes ~8 mi
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 from pathlib import Path
 
@@ -116,21 +115,3 @@ def build(data: dict, runs_per_clip: int = 2, frames: int = 300, workers: int = 
     np.savez(path, **result)
     return result
 
-
-def main(argv: list[str] | None = None) -> dict:
-    ap = argparse.ArgumentParser(prog="python -m models.train.chain_sources", description=__doc__.splitlines()[0])
-    ap.add_argument("--runs-per-clip", type=int, default=2)
-    ap.add_argument("--frames", type=int, default=300, help="frames per run (a window of the clip)")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--clips", type=int, default=None, help="only the first N training clips")
-    a = ap.parse_args(argv)
-    from models.train.train_retarget import load_clips  # the clips as the retargeter trains on them
-
-    out = build(load_clips(), a.runs_per_clip, a.frames, a.workers, a.seed, a.clips)
-    print(f"{len(out['clip'])} runs, {len(out['joints'])} frames, person found in {100 * out['found'].mean():.1f} %")
-    return out
-
-
-if __name__ == "__main__":
-    main()

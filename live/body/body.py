@@ -1,0 +1,29 @@
+"""The Body: a rigged, skinned human mesh in the canonical T-pose (the body-file contract of
+CONVENTIONS.md in memory). Loaded and saved by live.body.library, built from an Anny phenotype by
+live.body.anny."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """vertices (V,3) float32 T-pose mesh, y up, feet on y=0, facing +z; faces (F,3) int32;
+    rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
+    phenotype: the Anny parameters it was made from, or None. Arrays of a loaded body are
+    read-only (load_body shares them between callers)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    rest_joints: np.ndarray
+    weights: np.ndarray
+    parents: np.ndarray
+    name: str
+    phenotype: dict | None = None
+
+    @property
+    def height(self) -> float:
+        return float(self.vertices[:, 1].max() - self.vertices[:, 1].min())
