@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.serial_source import SerialSource  # noqa: E402
-from live.imu.calibration import yaw_of  # noqa: E402
+from live.core.heading import yaw_of  # noqa: E402
 from live.imu.stage import ImuSkeletonStage, build_stages  # noqa: E402
 from live.pipeline.runner import Pipeline  # noqa: E402
 from live.motion.rig_mapping import load_motion, resample  # noqa: E402

@@ -16,13 +16,13 @@ passes them through for firmware that already sends livecap world orientations.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from typing import Iterable
 
 import numpy as np
 
-from drivers.xbus import FRAME_TO_WORLD, _qconj, _qmul
+from drivers.xbus import FRAME_TO_WORLD
+from live.core import vec3 as v3
 
 MAX_LINE = 512
 FRAMES = ("enu", "world")
@@ -56,7 +56,7 @@ def line_checksum(body: bytes) -> int:
 
 def _to_device(quat: Iterable[float], frame: str) -> tuple:
     q = tuple(float(v) for v in quat)
-    return _qmul(_qconj(FRAME_TO_WORLD[0x0]), q) if frame == "enu" else q
+    return v3.quat_mul(v3.quat_conj(FRAME_TO_WORLD[0x0]), q) if frame == "enu" else q
 
 
 def encode_line(sensor: int, t_us: int, quat: Iterable[float], *, acc: Iterable[float] | None = None,
@@ -203,9 +203,9 @@ class LineParser:
                 acc = _vec3(parts[6:9])
             if len(parts) == 12:
                 gyro = _vec3(parts[9:12])
-        norm = math.sqrt(sum(v * v for v in qv))
+        norm = v3.quat_norm(qv)
         if not 0.5 < norm < 1.5:  # also false for NaN
             raise ValueError("q is not a rotation")
-        qw = _qmul(self._to_world, qv)
+        qw = v3.quat_mul(self._to_world, qv)
         quat = np.array(qw, dtype=np.float64) / norm
         return LineSample(sensor=sensor, t_us=t_us, quat=quat, acc=acc, gyro=gyro, mag=mag)

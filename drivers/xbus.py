@@ -31,6 +31,7 @@ from typing import Any, Iterable, Protocol
 
 import numpy as np
 
+from live.core import vec3 as v3
 from live.core.errors import DeviceError, FormatError
 from live.core.rotations import matrix_to_euler, matrix_to_quat, quat_to_matrix
 
@@ -89,22 +90,6 @@ _DEVICE_TO_ENU = {
 FRAME_TO_WORLD: dict[int, tuple[float, float, float, float]] = {
     c: tuple(float(v) for v in matrix_to_quat(_ENU_TO_WORLD @ m)) for c, m in _DEVICE_TO_ENU.items()
 }
-
-
-def _qmul(a: tuple, b: tuple) -> tuple[float, float, float, float]:
-    """Hamilton product of two 4-tuples, in plain floats (the decoder's hot path)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-def _qconj(q: tuple) -> tuple[float, float, float, float]:
-    return (q[0], -q[1], -q[2], -q[3])
 
 
 # ----------------------------------------------------------------------------- messages
@@ -232,20 +217,8 @@ _ITEM_HEADER = struct.Struct(">HB")
 
 
 def _matrix_to_quat(v: tuple) -> tuple[float, float, float, float]:
-    """Column-major 3x3 rotation (9 floats) -> quaternion, Shepperd's method in plain floats."""
-    m00, m10, m20, m01, m11, m21, m02, m12, m22 = v
-    tr = m00 + m11 + m22
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        return (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-    if m00 > m11 and m00 > m22:
-        s = math.sqrt(1.0 + m00 - m11 - m22) * 2
-        return ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-    if m11 > m22:
-        s = math.sqrt(1.0 + m11 - m00 - m22) * 2
-        return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
-    s = math.sqrt(1.0 + m22 - m00 - m11) * 2
-    return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+    """Column-major 3x3 rotation (9 floats) -> quaternion."""
+    return v3.quat_from_matrix((v[0::3], v[1::3], v[2::3]))
 
 
 def _euler_to_quat(v: tuple) -> tuple[float, float, float, float]:
@@ -264,7 +237,7 @@ _TO_QUAT = {"quat": lambda v: v, "matrix": _matrix_to_quat, "euler": _euler_to_q
 def _orientation_to_world(kind: str, values: tuple, coord: int) -> tuple:
     """Device orientation values -> world quaternion tuple (w, x, y, z)."""
     try:
-        return _qmul(FRAME_TO_WORLD[coord], _TO_QUAT[kind](values))
+        return v3.quat_mul(FRAME_TO_WORLD[coord], _TO_QUAT[kind](values))
     except (ValueError, ArithmeticError):  # garbage posing as a matrix (sqrt < 0, s == 0)
         raise FormatError(f"MTData2 {kind} is not a rotation") from None
 
@@ -306,7 +279,7 @@ def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, in
         i = end
     if orient is not None:
         q = _orientation_to_world(*orient)
-        norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        norm = v3.quat_norm(q)
         if not 0.9 < norm < 1.1:  # also rejects NaN: random bytes posing as a frame
             raise FormatError(f"MTData2 orientation is not a rotation (norm {norm:.3g})")
         sample.quat = np.array((q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm))
@@ -346,7 +319,7 @@ def encode_mtdata2(
         item(XDI_SAMPLE_TIME_FINE, struct.pack(">I", sample_time_fine & 0xFFFFFFFF))
     if quat is not None:
         qw = tuple(float(v) for v in quat)
-        qd = _qmul(_qconj(FRAME_TO_WORLD[cbits]), qw)
+        qd = v3.quat_mul(v3.quat_conj(FRAME_TO_WORLD[cbits]), qw)
         if orientation == "quat":
             values: Iterable[float] = qd
         elif orientation == "matrix":

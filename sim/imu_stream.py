@@ -25,9 +25,10 @@ import numpy as np
 from drivers import xbus
 from drivers.text_lines import encode_line
 from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
-from live.imu.calibration import pose_globals, yaw_of, yaw_quat
+from live.core.heading import yaw_of, yaw_quat
+from live.core.kinematics import local_rotations
+from live.imu.calibration import pose_globals
 from live.imu.layout import SuitLayout, load_suit_layout
-from live.imu.suit_skeleton import globals_to_locals
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS
 from live.core.protocols import StreamInfo
@@ -82,7 +83,7 @@ def calibration_prelude(first_rotations: np.ndarray, pose: str, rest_joints: np.
     """(K, 22, 4) local rotations: ``pose`` held for hold_s facing the clip's first heading,
     then a smooth blend into ``first_rotations`` (22, 4) over blend_s; K samples at rate_hz."""
     facing = yaw_quat(yaw_of(first_rotations[0]))
-    calib = globals_to_locals(quat_multiply(facing, pose_globals(pose, rest_joints)))
+    calib = local_rotations(quat_multiply(facing, pose_globals(pose, rest_joints)))
     n = int(round((hold_s + blend_s) * rate_hz))
     t = np.arange(n) / rate_hz
     x = np.clip((t - hold_s) / max(blend_s, 1e-9), 0.0, 1.0)

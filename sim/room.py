@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from live.core.errors import UserInputError
+from live.core.heading import yaw_matrix
 from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
 
 Mesh = tuple[np.ndarray, np.ndarray]
@@ -36,9 +37,7 @@ class Box:
     yaw: float = 0.0
 
     def mesh(self) -> Mesh:
-        c, s = np.cos(self.yaw), np.sin(self.yaw)
-        rot = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-        v = (_CUBE_V * np.asarray(self.size)) @ rot.T + np.asarray(self.center)
+        v = (_CUBE_V * np.asarray(self.size)) @ yaw_matrix(self.yaw).T + np.asarray(self.center)
         return v.astype(np.float32), _CUBE_F.copy()
 
 

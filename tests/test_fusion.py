@@ -6,8 +6,7 @@ import pytest
 
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult, SkeletonFrame
-from live.imu.calibration import yaw_of
-from live.imu.fusion import yaw_between
+from live.core.heading import yaw_between, yaw_of
 from live.imu.stage import FusionStage, build_stages
 from live.pipeline.runner import Pipeline
 from live.motion.rig_mapping import load_motion, resample

@@ -8,16 +8,17 @@ import pytest
 
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
-from live.imu.calibration import Calibration, CalibrationCollector, calibrate, pose_globals, yaw_quat
+from live.core.heading import yaw_of, yaw_quat
+from live.imu.calibration import Calibration, CalibrationCollector, calibrate, pose_globals
 from live.imu.layout import load_suit_layout
 from live.imu.stage import ImuSkeletonStage, build_stages
-from live.imu.suit_skeleton import ChainPlan, fill_globals, globals_to_locals, joints_from_globals
-from live.core.kinematics import forward_kinematics, global_rotations
+from live.imu.suit_skeleton import ChainPlan, fill_globals
+from live.core.kinematics import forward_kinematics, global_rotations, joints_from_global_quats, local_rotations
 from live.pipeline.runner import Pipeline
 from live.motion.rig_mapping import load_motion, resample
 from live.core.rotations import quat_angle, quat_conjugate, quat_multiply
 from live.io.session import SessionReader
-from live.core.skeleton import JOINT_INDEX, default_rest_joints
+from live.core.skeleton import JOINT_INDEX, default_rest_joints, rest_offsets
 from sim.imu_model import random_rotations
 from sim.imu_stream import MotionScene, write_suit_session
 from sim.replay import ReplaySource
@@ -110,9 +111,10 @@ def test_fill_globals_and_fast_fk_match_forward_kinematics():
     glob = fill_globals(seg, plan)
     np.testing.assert_allclose(glob[layout.joints], seg * np.sign(np.sum(glob[layout.joints] * seg, -1))[:, None],
                                atol=1e-9)
-    local = globals_to_locals(glob)
+    local = local_rotations(glob)
     ref, ref_glob = forward_kinematics(local, np.array([0.1, 0.9, 0.2]), REST)
-    np.testing.assert_allclose(joints_from_globals(glob, np.array([0.1, 0.9, 0.2]), REST), ref, atol=1e-9)
+    offsets = rest_offsets(REST.astype(np.float64))
+    np.testing.assert_allclose(joints_from_global_quats(glob, np.array([0.1, 0.9, 0.2]), offsets), ref, atol=1e-9)
     # Spine1 and spine2 split the pelvis -> chest rotation in equal thirds.
     rel = quat_multiply(quat_conjugate(glob[0]), glob[JOINT_INDEX["spine3"]])
     third = quat_angle(quat_multiply(quat_conjugate(glob[0]), glob[JOINT_INDEX["spine1"]]))
@@ -133,8 +135,6 @@ def walk_session(tmp_path_factory, shared_bvh):
 def _run_imu(path, scene, **kw):
     meta = next(s.meta for s in SessionReader(path).info.streams if s.kind == "serial")
     stage = build_stages("imu", stream_meta=meta, **kw)[0]
-    from live.imu.calibration import yaw_of
-
     # The performer starts on a marked spot, facing a marked direction.
     stage.world_yaw = float(yaw_of(scene.motion.rotations[0, 0]))
     stage.start = scene.root[0]

@@ -1,7 +1,5 @@
 """Analytic retargeting: rotations from joints, copying onto other bodies, contacts and IK."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -361,15 +359,3 @@ def test_performer_rest_estimate_with_library_template():
     true = pelvis_height(body.rest_joints)
     assert abs(pelvis_height(estimate_rest_joints(joints, template)) / true - 1) < 0.03
     assert pelvis_height(estimate_rest_joints(joints, default_rest_joints())) / true > 1.03
-
-
-def test_joints_from_globals_is_forward_kinematics():
-    from live.retarget.analytic import fk_matrices, joints_from_globals
-    from live.core.rotations import quat_from_axis_angle, quat_to_matrix
-
-    rng = np.random.default_rng(8)
-    rest = default_rest_joints(1.6)
-    loc = quat_to_matrix(quat_from_axis_angle(rng.normal(0, 0.6, (5, NUM_JOINTS, 3))))
-    root = rng.normal(0, 1, (5, 3))
-    glob, joints = fk_matrices(loc, root, rest_offsets(rest))
-    np.testing.assert_allclose(joints_from_globals(glob, root, rest_offsets(rest)), joints, atol=1e-12)

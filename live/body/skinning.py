@@ -12,7 +12,7 @@ import threading
 
 import numpy as np
 
-from live.core.kinematics import forward_kinematics
+from live.core.kinematics import forward_kinematics, forward_kinematics_frame
 from live.core.rotations import quat_to_matrix
 from live.core.skeleton import PARENTS, rest_offsets
 
@@ -61,17 +61,7 @@ def _single_frame_transforms(rotations: np.ndarray, root: np.ndarray, rest: np.n
                              parents: np.ndarray) -> np.ndarray:
     """One frame: the same transforms with a 3x3 loop (the live path; no per-joint quaternion
     arrays). Equal to the batched path to float precision."""
-    local = quat_to_matrix(rotations)
-    offsets = rest_offsets(rest)
-    glob = np.empty_like(local)
-    pos = np.empty_like(rest)
-    for j, p in enumerate(parents):
-        if p < 0:
-            glob[j] = local[j]
-            pos[j] = root
-        else:
-            glob[j] = glob[p] @ local[j]
-            pos[j] = pos[p] + glob[p] @ offsets[j]
+    pos, glob = forward_kinematics_frame(quat_to_matrix(rotations), root, rest_offsets(rest), parents)
     return pose_transforms(glob, pos, rest)
 
 

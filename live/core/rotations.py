@@ -188,7 +188,8 @@ def quat_slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray | float) -> np.ndarra
     return quat_normalize(wa * a + wb * b)
 
 
-def _axis_matrix(axis: str, angle: np.ndarray) -> np.ndarray:
+def axis_matrix(axis: str, angle: np.ndarray) -> np.ndarray:
+    """Rotations about the coordinate axis "X", "Y" or "Z" by ``angle`` (...,) radians -> (..., 3, 3)."""
     c, s = np.cos(angle), np.sin(angle)
     one, zero = np.ones_like(angle), np.zeros_like(angle)
     if axis == "X":
@@ -206,9 +207,9 @@ def euler_to_matrix(angles: np.ndarray, order: str) -> np.ndarray:
     """Euler angles (..., 3) in radians, in ``order`` (e.g. "ZXY") -> matrices R = R_a R_b R_c."""
     angles = np.asarray(angles, dtype=np.float64)
     order = order.upper()
-    m = _axis_matrix(order[0], angles[..., 0])
+    m = axis_matrix(order[0], angles[..., 0])
     for i in (1, 2):
-        m = m @ _axis_matrix(order[i], angles[..., i])
+        m = m @ axis_matrix(order[i], angles[..., i])
     return m
 
 

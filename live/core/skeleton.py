@@ -31,10 +31,57 @@ LEFT_RIGHT_SWAP: np.ndarray = np.array(
     dtype=np.int64,
 )
 
-#: Joints whose children exist; leaves (feet, head, wrists) carry no bone direction of their own.
+
+# ----------------------------------------------------------------------------- topology
+# Any tree given as a parents array (-1 for the root, parents before their children): the
+# canonical tables below, and the rigs of BVH files.
+
+
+def joint_depths(parents: np.ndarray) -> np.ndarray:
+    """(J,) number of bones between each joint and the root (the root is at depth 0)."""
+    depth = np.zeros(len(parents), dtype=np.int64)
+    for j, p in enumerate(parents):
+        if p >= 0:
+            depth[j] = depth[p] + 1
+    return depth
+
+
+def ancestors_of(parents: np.ndarray, j: int) -> tuple[int, ...]:
+    """Joints above j, nearest first: (parent, grandparent, ..., root); () for the root."""
+    out = []
+    while parents[j] >= 0:
+        j = int(parents[j])
+        out.append(j)
+    return tuple(out)
+
+
+#: Children of each joint; leaves (feet, head, wrists) carry no bone direction of their own.
 CHILDREN: tuple[tuple[int, ...], ...] = tuple(
     tuple(int(c) for c in np.flatnonzero(PARENTS == j)) for j in range(NUM_JOINTS)
 )
+#: Joints without children.
+LEAVES: tuple[int, ...] = tuple(j for j in range(NUM_JOINTS) if not CHILDREN[j])
+#: (22,) depth of each joint in the tree (pelvis 0).
+DEPTHS: np.ndarray = joint_depths(PARENTS)
+#: Joint indices per tree level, LEVELS[d] = the joints at depth d: a level is a batch whose
+#: parents are all in earlier levels (forward kinematics one level at a time).
+LEVELS: tuple[np.ndarray, ...] = tuple(np.flatnonzero(DEPTHS == d) for d in range(int(DEPTHS.max()) + 1))
+#: ANCESTORS[j]: the joints above j, nearest first, ending at the pelvis (() for the pelvis).
+ANCESTORS: tuple[tuple[int, ...], ...] = tuple(ancestors_of(PARENTS, j) for j in range(NUM_JOINTS))
+
+
+def _bone_ancestry() -> np.ndarray:
+    a = np.zeros((NUM_JOINTS, NUM_JOINTS - 1))
+    for j in range(1, NUM_JOINTS):
+        for k in (j,) + ANCESTORS[j][:-1]:
+            a[j, k - 1] = 1.0
+    return a
+
+
+#: (22, 21): BONE_ANCESTRY[j, k - 1] = 1 where bone k (from joint k's parent to joint k) lies on
+#: the path from the root to joint j, so joints = root + BONE_ANCESTRY @ bone vectors (one
+#: product instead of a walk down the tree).
+BONE_ANCESTRY: np.ndarray = _bone_ancestry()
 
 
 def rest_offsets(rest_joints: np.ndarray) -> np.ndarray:
@@ -43,6 +90,17 @@ def rest_offsets(rest_joints: np.ndarray) -> np.ndarray:
     offsets = rest_joints.copy()
     offsets[1:] = rest_joints[1:] - rest_joints[PARENTS[1:]]
     return offsets
+
+
+def joints_from_offsets(offsets: np.ndarray) -> np.ndarray:
+    """Inverse of ``rest_offsets``: (22, 3) offsets from each parent (row 0: the root's position)
+    -> (22, 3) joint positions, each its parent's plus its offset."""
+    offsets = np.asarray(offsets)
+    joints = np.empty_like(offsets)
+    joints[0] = offsets[0]
+    for p, c in BONES:
+        joints[c] = joints[p] + offsets[c]
+    return joints
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:

@@ -1,11 +1,13 @@
-"""Plain-float 3-vectors and 3x3 matrices for the retargeter's per-frame hot path.
+"""Plain-float 3-vectors, 3x3 matrices and quaternions for per-frame hot paths.
 
-One frame of the analytic retargeter is a few dozen rotations of single joints. On arrays that
-small numpy pays ~1-5 us of call overhead per operation, plain Python floats ~0.1 us, so the
-per-frame solver (live/retarget/analytic.py) and the two-bone IK (live/retarget/ik.py) run on
-these and make arrays once per frame. Vectors are 3-sequences of floats, matrices 3 rows acting
-on column vectors (v' = M v), as in live/core/rotations.py. Pure functions; float64 throughout, so
-results equal numpy's to rounding.
+One frame of the analytic retargeter is a few dozen rotations of single joints, one IMU sample
+one quaternion. On arrays that small numpy pays ~1-5 us of call overhead per operation, plain
+Python floats ~0.1 us, so the per-frame solver (live/retarget/analytic.py), the two-bone IK
+(live/retarget/ik.py) and the IMU decoders (drivers/) run on these and make arrays once per frame.
+Vectors are 3-sequences of floats, matrices 3 rows acting on column vectors (v' = M v),
+quaternions 4-sequences (w, x, y, z) with the Hamilton product, as in live/core/rotations.py (its
+batched numpy counterpart). Pure functions; float64 throughout, so results equal numpy's to
+rounding.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Sequence
 
 Vec = Sequence[float]
 Mat = Sequence[Vec]
+Quat = Sequence[float]
 EPS = 1e-12
 IDENTITY: tuple[tuple[float, float, float], ...] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
@@ -116,3 +119,49 @@ def frame(a: Vec, b: Vec) -> tuple[tuple[float, float, float], ...]:
     e1 = unit(a)
     e3 = unit(cross(e1, b))
     return columns(e1, cross(e3, e1), e3)
+
+
+def wrap_angle(a: float) -> float:
+    """An angle (radians) wrapped into [-pi, pi) (live.core.heading.wrap_angle on one float)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# ----------------------------------------------------------------------------- quaternions
+
+
+def quat_mul(a: Quat, b: Quat) -> tuple[float, float, float, float]:
+    """Hamilton product a * b (apply b first, then a)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def quat_conj(q: Quat) -> tuple[float, float, float, float]:
+    """The conjugate (the inverse of a unit quaternion)."""
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def quat_norm(q: Quat) -> float:
+    return math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+
+
+def quat_from_matrix(m: Mat) -> tuple[float, float, float, float]:
+    """Rotation matrix (3 rows) -> quaternion, Shepperd's method (pivot on the trace first)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m
+    tr = m00 + m11 + m22
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        return (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    if m00 > m11 and m00 > m22:
+        s = math.sqrt(1.0 + m00 - m11 - m22) * 2
+        return ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    if m11 > m22:
+        s = math.sqrt(1.0 + m11 - m00 - m22) * 2
+        return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    s = math.sqrt(1.0 + m22 - m00 - m11) * 2
+    return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)

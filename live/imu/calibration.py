@@ -28,29 +28,13 @@ import numpy as np
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
 from live.imu.layout import SuitLayout, load_suit_layout
+from live.core.heading import yaw_of, yaw_quat
 from live.core.rotations import (
     quat_angle, quat_between, quat_conjugate, quat_identity, quat_multiply, quat_normalize,
 )
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, default_rest_joints
 
 POSES = ("tpose", "npose")
-
-
-def yaw_quat(angle: np.ndarray | float) -> np.ndarray:
-    """Rotations about world +Y by ``angle`` (...,) radians -> (..., 4)."""
-    a = 0.5 * np.asarray(angle, dtype=np.float64)
-    z = np.zeros_like(a)
-    return np.stack([np.cos(a), z, np.sin(a), z], axis=-1)
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Heading (..., ) radians of rotations (..., 4): the angle of their twist about world +Y."""
-    q = np.asarray(q, dtype=np.float64)
-    return 2.0 * np.arctan2(q[..., 2], q[..., 0])
-
-
-def wrap_angle(a: np.ndarray | float) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
 def mean_quat(q: np.ndarray) -> np.ndarray:

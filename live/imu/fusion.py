@@ -19,23 +19,13 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.frames import SkeletonFrame
-from live.imu.calibration import Calibration, wrap_angle
-from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals, globals_to_locals, joints_from_globals
-from live.retarget.analytic import estimate_rest_joints
+from live.core.heading import wrap_angle, yaw_between
+from live.core.kinematics import joints_from_global_quats, local_rotations
 from live.core.rotations import quat_between, quat_identity, quat_multiply, quat_rotate, quat_slerp
-from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
-
-
-
-def yaw_between(pred: np.ndarray, obs: np.ndarray, weight: np.ndarray) -> tuple[float, float]:
-    """Yaw (radians, about world +Y) that best turns directions pred (K, 3) onto obs (K, 3), with
-    weights (K,); returns (angle, evidence), evidence = weighted horizontal length product."""
-    p = pred[:, [0, 2]]
-    o = obs[:, [0, 2]]
-    # A rotation by +a about +Y takes (x, z) to (x cos a + z sin a, -x sin a + z cos a).
-    s = np.sum(weight * (p[:, 1] * o[:, 0] - p[:, 0] * o[:, 1]))
-    c = np.sum(weight * (p[:, 0] * o[:, 0] + p[:, 1] * o[:, 1]))
-    return float(np.arctan2(s, c)), float(np.hypot(s, c))
+from live.core.skeleton import ANCESTORS, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, joints_from_offsets, rest_offsets
+from live.imu.calibration import Calibration
+from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals
+from live.retarget.analytic import estimate_rest_joints
 
 
 #: Bones whose rest direction is kept from the template and only the length is learnt: the
@@ -82,9 +72,8 @@ class RestEstimator:
         ratio = np.linalg.norm(off[1:], axis=-1) / np.maximum(tl, 1e-9)
         scale = float(np.median(ratio[seen[1:] & (tl > 0.05)])) if np.any(seen[1:] & (tl > 0.05)) else 1.0
         off = scale * tpl + trust * (off - scale * tpl)
-        rest = np.zeros((NUM_JOINTS, 3))
-        for p, c in BONES:
-            rest[c] = rest[p] + off[c]
+        off[0] = 0.0  # pelvis at the origin
+        rest = joints_from_offsets(off)
         low = rest[[7, 8, 10, 11], 1].min()
         tpl_low = self.template[[7, 8, 10, 11], 1].min()
         rest[:, 1] += -low + tpl_low
@@ -133,9 +122,7 @@ class Fuser:
         self._borrow = np.arange(self.S)
         for i, j in enumerate(calibration.joints):
             if not CHILDREN[int(j)]:
-                a = PARENTS[int(j)]
-                while a >= 0 and a not in row:
-                    a = PARENTS[a]
+                a = next((a for a in ANCESTORS[int(j)] if a in row), -1)
                 self._borrow[i] = row[a] if a >= 0 else i
         self._free = [j for j in range(1, NUM_JOINTS) if self.plan.source[j] < 0 and CHILDREN[j]]
         self._needs_depth_locals = any(self.plan.anchor[j] < 0 for j in self._free)
@@ -214,8 +201,8 @@ class Fuser:
         glob = fill_globals(seg, self.plan, fallback)
         if x is not None:
             glob = self._swing_correct(glob, x, conf, offs)
-        local = globals_to_locals(glob)
-        rel = joints_from_globals(glob, np.zeros(3), rest)
+        local = local_rotations(glob)
+        rel = joints_from_global_quats(glob, np.zeros(3), offs)
         odo = self.solver.odometry.update(rel)
         step = np.zeros(3) if self._odo_prev is None else odo - self._odo_prev
         self._odo_prev = odo
@@ -233,4 +220,4 @@ class Fuser:
         return SuitPose(root=root, local=local, glob=glob, joints=rel + root), out_conf
 
 
-__all__ = ["Fuser", "RestEstimator", "yaw_between", "LENGTH_ONLY"]
+__all__ = ["Fuser", "RestEstimator", "LENGTH_ONLY"]

@@ -3,9 +3,10 @@
 Pure pieces: ``fill_globals`` completes the segment rotations the suit measures into all 22
 global rotations (joints without a sensor between two measured ones share the relative
 rotation, e.g. the spine between pelvis and chest; others follow their parent or a given local
-rotation such as the depth skeleton's); ``globals_to_locals``. Stateful: ``FootOdometry`` puts
-the root where the stance foot stays planted when no camera gives it, and ``SuitSolver`` chains
-calibration -> heading -> rotations -> FK.
+rotation such as the depth skeleton's); local rotations and joints then come from
+live.core.kinematics. Stateful: ``FootOdometry`` puts the root where the stance foot stays
+planted when no camera gives it, and ``SuitSolver`` chains calibration -> heading -> rotations
+-> FK.
 """
 
 from __future__ import annotations
@@ -14,11 +15,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.imu.calibration import Calibration, yaw_quat
-from live.core.rotations import (
-    quat_conjugate, quat_identity, quat_multiply, quat_normalize, quat_rotate, quat_slerp,
-)
-from live.core.skeleton import CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, rest_offsets
+from live.core.heading import yaw_quat
+from live.core.kinematics import joints_from_global_quats, local_rotations
+from live.core.rotations import quat_conjugate, quat_identity, quat_multiply, quat_normalize, quat_slerp
+from live.core.skeleton import CHILDREN, JOINT_INDEX, LEVELS, NUM_JOINTS, PARENTS, rest_offsets
+from live.imu.calibration import Calibration
 
 #: How much of a measured relative rotation an unmeasured joint takes, relative to the measured
 #: joint's own share (1.0). Collars move far less than the shoulders they carry.
@@ -63,24 +64,6 @@ class ChainPlan:
         return cls(source=source, anchor=anchor, target=target, share=share)
 
 
-def _levels() -> list[np.ndarray]:
-    depth = np.zeros(NUM_JOINTS, dtype=np.int64)
-    for j in range(1, NUM_JOINTS):
-        depth[j] = depth[PARENTS[j]] + 1
-    return [np.flatnonzero(depth == d) for d in range(1, depth.max() + 1)]
-
-
-_LEVELS = _levels()
-#: ANCESTORS[j, k - 1] = 1 when bone k (joint k and its parent) lies on the path root -> j, so
-#: joints = root + ANCESTORS @ bone_vectors (one product instead of a loop over the tree).
-ANCESTORS = np.zeros((NUM_JOINTS, NUM_JOINTS - 1))
-for _j in range(1, NUM_JOINTS):
-    _k = _j
-    while _k > 0:
-        ANCESTORS[_j, _k - 1] = 1.0
-        _k = PARENTS[_k]
-
-
 def fill_globals(segment_globals: np.ndarray, plan: ChainPlan, fallback_local: np.ndarray | None = None,
                  root_global: np.ndarray | None = None) -> np.ndarray:
     """Measured segment rotations (..., S, 4) -> all 22 global rotations (..., 22, 4).
@@ -96,7 +79,7 @@ def fill_globals(segment_globals: np.ndarray, plan: ChainPlan, fallback_local: n
     out[..., measured, :] = seg[..., plan.source[measured], :]
     if not measured[0] and root_global is not None:
         out[..., 0, :] = root_global
-    for level in _LEVELS:
+    for level in LEVELS[1:]:
         chain = level[(plan.source[level] < 0) & (plan.anchor[level] >= 0)]
         if len(chain):
             a = out[..., plan.anchor[chain], :]
@@ -108,22 +91,6 @@ def fill_globals(segment_globals: np.ndarray, plan: ChainPlan, fallback_local: n
             par = out[..., PARENTS[follow], :]
             out[..., follow, :] = par if fallback_local is None else quat_multiply(par, fallback_local[..., follow, :])
     return quat_normalize(out)
-
-
-def joints_from_globals(glob: np.ndarray, root: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
-    """World joints (..., 22, 3) from global rotations (..., 22, 4), the root (..., 3) and the
-    rest skeleton (22, 3); equal to forward_kinematics of the matching local rotations."""
-    offsets = rest_offsets(np.asarray(rest_joints, np.float64))[1:]
-    bones = quat_rotate(np.asarray(glob, np.float64)[..., PARENTS[1:], :], offsets)
-    return np.asarray(root, np.float64)[..., None, :] + np.einsum("jk,...kd->...jd", ANCESTORS, bones)
-
-
-def globals_to_locals(glob: np.ndarray) -> np.ndarray:
-    """Global rotations (..., 22, 4) -> local rotations relative to the parent (..., 22, 4)."""
-    glob = np.asarray(glob, dtype=np.float64)
-    loc = glob.copy()
-    loc[..., 1:, :] = quat_multiply(quat_conjugate(glob[..., PARENTS[1:], :]), glob[..., 1:, :])
-    return loc
 
 
 def foot_clearance(rest_joints: np.ndarray) -> np.ndarray:
@@ -213,8 +180,8 @@ class SuitSolver:
         seg = self.segment_globals(quats, yaw_correction)
         root_g = None if self._has_pelvis or fallback_local is None else fallback_local[0]
         glob = fill_globals(seg, self.plan, fallback_local, root_global=root_g)
-        local = globals_to_locals(glob)
-        rel = joints_from_globals(glob, np.zeros(3), self.rest_joints)
+        local = local_rotations(glob)
+        rel = joints_from_global_quats(glob, np.zeros(3), rest_offsets(self.rest_joints))
         odo = self.odometry.update(rel)
         r = odo if root is None else np.asarray(root, np.float64)
         return SuitPose(root=r, local=local, glob=glob, joints=rel + r)

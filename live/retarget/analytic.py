@@ -36,8 +36,11 @@ from live.core.errors import UserInputError
 from live.core.vec3 import Mat
 from live.core import vec3 as v3
 from live.retarget.ik import cross, dot, normalize
+from live.core.kinematics import local_matrices
 from live.core.rotations import matrix_to_quat
-from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+from live.core.skeleton import (
+    BONES, CHILDREN, JOINT_INDEX, LEAVES, NUM_JOINTS, PARENTS, joints_from_offsets, pelvis_height, rest_offsets,
+)
 
 _J = JOINT_INDEX
 #: Limb chains whose middle joint is a hinge: (root, middle, end, rest hinge axis).
@@ -58,18 +61,6 @@ _FRAMED = {
     _J["pelvis"]: (_J["right_hip"], _J["left_hip"], _J["pelvis"], _J["spine1"]),
     _J["spine3"]: (_J["right_collar"], _J["left_collar"], _J["spine3"], _J["neck"]),
 }
-
-
-def _depths() -> np.ndarray:
-    d = np.zeros(NUM_JOINTS, dtype=np.int64)
-    for j in range(1, NUM_JOINTS):
-        d[j] = d[PARENTS[j]] + 1
-    return d
-
-
-_DEPTH = _depths()
-#: Joint indices per tree level (parents always in an earlier level).
-LEVELS: tuple[np.ndarray, ...] = tuple(np.flatnonzero(_DEPTH == k) for k in range(_DEPTH.max() + 1))
 
 
 @dataclass(frozen=True)
@@ -132,10 +123,6 @@ def _limb_twist(x: list, g: Mat, limb: tuple, consts: tuple) -> tuple[float, flo
     return angle, weight
 
 
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def _swing_order() -> tuple[tuple[int, int, int, int], ...]:
     """(joint, parent, child, limb or -1) of every joint posed by the swing of its one bone,
     parents before children (framed joints need no parent, so they come before everything)."""
@@ -150,7 +137,7 @@ def _swing_order() -> tuple[tuple[int, int, int, int], ...]:
 
 
 _SWING = _swing_order()
-_LEAVES = tuple((j, int(PARENTS[j])) for j in range(NUM_JOINTS) if not CHILDREN[j])  # (leaf, parent)
+_LEAVES = tuple((j, int(PARENTS[j])) for j in LEAVES)  # (leaf, parent)
 
 
 def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
@@ -165,7 +152,7 @@ def _solve_frame(x: list, info: RestInfo, twist: list) -> list:
         if k >= 0:
             # The plane's twist where the limb is bent, the previous frame's where it is straight.
             angle, weight = _limb_twist(x, g, _LIMB_IDX_F[k], info.limbs[k])
-            twist[k] = _wrap(twist[k] + weight * _wrap(angle - twist[k]))
+            twist[k] = v3.wrap_angle(twist[k] + weight * v3.wrap_angle(angle - twist[k]))
             g = v3.mm(g, v3.axis_angle(info.limbs[k][0], twist[k]))
         glob[j] = g
     for j, p in _LEAVES:
@@ -185,51 +172,7 @@ def solve_globals(
     prev = [0.0] * len(LIMBS) if twist is None else [float(t) for t in twist]
     glob = np.array([_solve_frame(x, info, prev) for x in np.asarray(joints, np.float64).tolist()])
     glob = glob.reshape(len(joints), NUM_JOINTS, 3, 3)
-    loc = np.empty_like(glob)
-    loc[:, 0] = glob[:, 0]
-    loc[:, 1:] = np.swapaxes(glob[:, PARENTS[1:]], -1, -2) @ glob[:, 1:]
-    return glob, loc, np.array(prev)
-
-
-def fk_matrices(loc: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Forward kinematics on rotation matrices, level by level (same result as live.core.kinematics).
-
-    loc (N, 22, 3, 3) local rotations; root (N, 3); offsets (22, 3) rest offsets from the parent.
-    Returns (global (N, 22, 3, 3), joints (N, 22, 3)).
-    """
-    n = loc.shape[0]
-    glob = np.empty_like(loc)
-    pos = np.empty((n, NUM_JOINTS, 3))
-    glob[:, 0] = loc[:, 0]
-    pos[:, 0] = root
-    for level in LEVELS[1:]:
-        p = PARENTS[level]
-        glob[:, level] = glob[:, p] @ loc[:, level]
-        pos[:, level] = pos[:, p] + np.einsum("nkij,kj->nki", glob[:, p], offsets[level])
-    return glob, pos
-
-
-def _ancestry() -> np.ndarray:
-    """(22, 22): A[j, i] = 1 where the bone into joint i lies on the chain from the root to j."""
-    a = np.zeros((NUM_JOINTS, NUM_JOINTS))
-    for j in range(1, NUM_JOINTS):
-        i = j
-        while i > 0:
-            a[j, i] = 1.0
-            i = int(PARENTS[i])
-    return a
-
-
-_ANCESTRY_BONES = _ancestry()[:, 1:]  # (22, 21): the root has no bone of its own
-
-
-def joints_from_globals(glob: np.ndarray, root: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Joint positions (N, 22, 3) of a pose given as global rotations (N, 22, 3, 3): each bone's
-    rest offset turned by its parent's global rotation, summed down the tree from the root (N, 3).
-    The same joints as ``fk_matrices`` of the matching local rotations, in one einsum and one
-    matmul with the constant ancestry matrix instead of a level-by-level loop."""
-    bones = np.einsum("nkij,kj->nki", glob[:, PARENTS[1:]], offsets[1:])  # (N, 21, 3)
-    return np.asarray(root, np.float64)[:, None, :] + _ANCESTRY_BONES @ bones
+    return glob, local_matrices(glob), np.array(prev)
 
 
 def local_rotations_from_joints(joints: np.ndarray, rest_joints: np.ndarray) -> np.ndarray:
@@ -287,9 +230,9 @@ def estimate_rest_joints(joints: np.ndarray, template: np.ndarray | None = None)
     parents, children = _BONE_ENDS
     lengths = np.median(np.linalg.norm(joints[:, children] - joints[:, parents], axis=-1), axis=0)
     dirs = normalize(tpl_off)
-    rest = np.zeros((NUM_JOINTS, 3))
-    for (p, c), length in zip(BONES, lengths.tolist()):
-        rest[c] = rest[p] + dirs[c] * length
+    offsets = np.zeros((NUM_JOINTS, 3))  # pelvis at the origin
+    offsets[children] = dirs[children] * lengths[:, None]
+    rest = joints_from_offsets(offsets)
     feet = [_J["left_ankle"], _J["right_ankle"], _J["left_foot"], _J["right_foot"]]
     drop = -rest[feet, 1].min()
     # The template's lowest foot joint sits above the floor by a fraction of its leg length.

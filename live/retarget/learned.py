@@ -16,8 +16,7 @@ import numpy as np
 
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
-from live.core.kinematics import forward_kinematics
-from live.retarget.analytic import joints_from_globals
+from live.core.kinematics import forward_kinematics, joints_from_global_matrices
 from live.retarget.feet import FootPlanter
 from live.core.rotations import matrix_to_quat, sixd_to_matrix
 from live.core.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
@@ -120,7 +119,7 @@ class LearnedRetargeter:
         loc = glob.copy()
         loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
         root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
-        joints = joints_from_globals(glob[None], root_t[None], self._offsets)[0]
+        joints = joints_from_global_matrices(glob[None], root_t[None], self._offsets)[0]
         self.feet(glob, loc, joints, self.dt if dt is None else dt)
         self.last_globals = glob
         return root_t, matrix_to_quat(loc), joints

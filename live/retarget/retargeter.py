@@ -12,7 +12,8 @@ import numpy as np
 
 from live.core.errors import UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
-from live.retarget.analytic import LIMBS, RestInfo, fk_matrices, joints_from_globals, leg_ratio, solve_globals
+from live.core.kinematics import forward_kinematics_matrices, joints_from_global_matrices
+from live.retarget.analytic import LIMBS, RestInfo, leg_ratio, solve_globals
 from live.retarget.contacts import ContactThresholds
 from live.retarget.feet import SOFT_IK, FootPlanter
 from live.retarget.ik import apply_limb_ik
@@ -98,7 +99,7 @@ class AnalyticRetargeter:
             root_t = src_root * self.ratio
             # Local rotations mean the same on every canonical body, so are the global ones:
             # the target's joints come from the source's globals and the target's bones.
-            pos = joints_from_globals(glob, root_t[None], self.target.offsets)
+            pos = joints_from_global_matrices(glob, root_t[None], self.target.offsets)
         elif pose.shape == (NUM_JOINTS, 4):
             if root is None:
                 raise UserInputError("rotations need a root position")
@@ -106,13 +107,13 @@ class AnalyticRetargeter:
             loc = quat_to_matrix(pose)[None]
             src = None
             root_t = src_root * self.ratio
-            glob, pos = fk_matrices(loc, root_t[None], self.target.offsets)
+            pos, glob = forward_kinematics_matrices(loc, root_t[None], self.target.offsets)
         else:
             raise UserInputError(f"a frame is (22, 3) joints or (22, 4) rotations, got {pose.shape}")
         glob, loc, pos = glob[0], loc[0].copy(), pos[0]
         if self.hand_ik:
             if src is None:
-                _, src = fk_matrices(quat_to_matrix(pose)[None], src_root[None], self.source.offsets)
+                src, _ = forward_kinematics_matrices(quat_to_matrix(pose)[None], src_root[None], self.source.offsets)
             wrists = root_t + (src[0, _ARMS[:, 2]] - src_root) * self.ratio
             apply_limb_ik(glob, loc, pos, self.target.offsets, _ARMS, _ARM_HINGES, wrists, CHILDREN, PARENTS)
         self.feet(glob, loc, pos, self.dt if dt is None else dt)

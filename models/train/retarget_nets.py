@@ -20,8 +20,10 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-NUM_JOINTS = 22
-PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19)
+from live.core import skeleton
+
+NUM_JOINTS = skeleton.NUM_JOINTS
+PARENTS = tuple(int(p) for p in skeleton.PARENTS)  # plain ints, for indexing tensors
 SOURCE_FEATURES = 22 * 3 + 21 * 3 + 3 + 1 + 22 * 3  # pose, bone directions, root velocity, height, T-pose
 TARGET_FEATURES = 22 * 3
 _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)  # first two columns of the identity

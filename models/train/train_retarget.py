@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from live.core.heading import yaw_quat
+from live.core.rotations import quat_multiply
 from models.train.retarget_nets import RetargetNet, count_parameters, export_onnx, fk, leg_length
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -196,19 +198,11 @@ def _window(out: np.ndarray, frames: np.ndarray) -> None:
 def _turn(a: float, rot: np.ndarray, root: np.ndarray, *points: np.ndarray) -> None:
     """Turn a window by the yaw ``a`` about the world origin, in place: the same motion facing
     elsewhere. rot (T, 22, 4) local quaternions (the pelvis's turns), root (T, 3), points (T, ..., 3)."""
-    yaw = np.array([np.cos(a / 2), 0.0, np.sin(a / 2), 0.0], np.float32)
-    rot[:, 0] = _qmul(yaw, rot[:, 0])
+    rot[:, 0] = quat_multiply(yaw_quat(a).astype(np.float32), rot[:, 0])
     c_, s_ = np.cos(a), np.sin(a)
     for xyz in (root, *points):
         x, z = xyz[..., 0].copy(), xyz[..., 2].copy()
         xyz[..., 0], xyz[..., 2] = c_ * x + s_ * z, -s_ * x + c_ * z
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
 
 
 def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body: torch.Tensor):
