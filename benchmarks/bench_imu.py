@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from drivers.serial_source import SerialSource  # noqa: E402
 from live.core.heading import yaw_of  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 from live.imu.stage import ImuSkeletonStage, build_stages  # noqa: E402
 from live.pipeline.runner import Pipeline  # noqa: E402
 from live.motion.rig_mapping import load_motion, resample  # noqa: E402
@@ -76,8 +77,9 @@ def latency_run(seconds: float, motion: SimpleMotion) -> dict:
         timer.cancel()
         suit_rate = suit.counters["steps"] / (time.monotonic() - t0 - 0.3)
     # Rate over the calibrated part (the stage first needs the 1 s hold).
-    return {"skeletons_per_s": (len(done) - 1) / ((done[-1] - done[0]) / 1e9), "p50_ms": float(np.percentile(lat, 50)),
-            "p95_ms": float(np.percentile(lat, 95)), "stage_p95_ms": stats["stages"]["imu"]["latency_ms"]["p95"],
+    return {"skeletons_per_s": (len(done) - 1) / ((done[-1] - done[0]) / 1e9),
+            **{f"{k}_ms": v for k, v in percentiles(lat, (50, 95)).items()},
+            "stage_p95_ms": stats["stages"]["imu"]["latency_ms"]["p95"],
             "skipped": stats["drops"]["skipped_for_latest"], "suit_samples_per_s": suit_rate}
 
 

@@ -26,6 +26,7 @@ from live.retarget.analytic import leg_ratio  # noqa: E402
 from live.retarget.retargeter import AnalyticRetargeter, retarget_motion  # noqa: E402
 from live.core.skeleton import default_rest_joints  # noqa: E402
 from test_retarget_analytic import perturbed_body, synth_motion  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 
 BVH_DIR = ROOT.parent / "shared" / "data" / "bvh"
 
@@ -37,7 +38,8 @@ def _time_steps(fn, items) -> tuple[float, float]:
         fn(it)
         ts.append(time.perf_counter() - t0)
     ms = np.array(ts[10:]) * 1e3  # skip warm-up
-    return float(np.median(ms)), float(np.percentile(ms, 95))
+    p = percentiles(ms, (50, 95))
+    return p["p50"], p["p95"]
 
 
 def bench_speed(frames: int) -> None:

@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from live.retarget.retargeter import AnalyticRetargeter  # noqa: E402
 from live.retarget.learned import LearnedRetargeter  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 
 BVH = ROOT.parent / "shared" / "data" / "bvh"
 
@@ -43,7 +44,8 @@ def _times(fn, items) -> tuple[float, float]:
         fn(it)
         ts.append(time.perf_counter() - t0)
     ms = np.array(ts[10:]) * 1e3
-    return float(np.median(ms)), float(np.percentile(ms, 95))
+    p = percentiles(ms, (50, 95))
+    return p["p50"], p["p95"]
 
 
 def main() -> None:

@@ -24,6 +24,7 @@ from models.skeleton.preprocess import PersonFinder, PreprocessConfig  # noqa: E
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage  # noqa: E402
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
 from sim.room import Box, Room  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 
 CLIP = ROOT.parent / "shared" / "data" / "bvh" / "cc_002_05.bvh"
 
@@ -58,7 +59,8 @@ def timed(fn, items, warmup: int = 10) -> tuple[float, float]:
         fn(it)
         ts.append(time.perf_counter() - t0)
     ms = np.array(ts[warmup:]) * 1e3
-    return float(np.median(ms)), float(np.percentile(ms, 95))
+    p = percentiles(ms, (50, 95))
+    return p["p50"], p["p95"]
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -34,6 +34,8 @@ SIGMAS = (1.0, 1.5)
 #: A light smoothing of the truth: what of its acceleration lies in the last frame-to-frame wiggle.
 TRUTH_SIGMA = 0.6
 RETARGETERS = ("analytic", "learned")
+#: The smoothness figure of every row (mm/frame^2, as live.evaluation.retarget.score keys it).
+ACC = "pa_acc_mm_per_frame2"
 
 
 def scaled_error(estimate: np.ndarray, truth: np.ndarray, alpha: float) -> np.ndarray:
@@ -62,9 +64,10 @@ def variants(alphas=ALPHAS, sigmas=SIGMAS) -> dict[str, Callable[[np.ndarray, np
 
 def budget(clips=None, *, max_frames: int = 300, lag: int = 0, seed: int = 0, alphas=ALPHAS, sigmas=SIGMAS,
            bvh_dir=None, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """The figures of the module docstring, averaged over the runs (metres, m/frame^2):
-    {"variants": {name: {"skeleton": {mpjpe, pa_acc}, "analytic": {...}, "learned": {...}}},
-    "truth": {"acc", "pa_acc_lost_to_smoothing", "sigma"}, "runs", "lag", "clips", "frames"}."""
+    """The figures of the module docstring, averaged over the runs (metres, mm/frame^2):
+    {"variants": {name: {"skeleton": {mpjpe, pa_acc_mm_per_frame2}, "analytic": {...}, "learned": {...}}},
+    "truth": {"acc_mm_per_frame2", "pa_acc_lost_to_smoothing_mm_per_frame2", "sigma"}, "runs", "lag",
+    "clips", "frames"}."""
     from live.evaluation.retarget import (HELD_OUT_CLIPS, _on_body, estimated_rest, held_out_runs, score,
                                         source_skeletons)
 
@@ -75,21 +78,23 @@ def budget(clips=None, *, max_frames: int = 300, lag: int = 0, seed: int = 0, al
     for run in held_out_runs(clips, max_frames=max_frames, bvh_dir=bvh_dir, seed=seed):
         estimate, _, found = source_skeletons(run.motion, run.source, "depth", seed=run.seed, lag=lag)
         _, truth = _on_body(run.motion, run.source.rest_joints)
-        truth_acc.append(acceleration_error(np.zeros_like(truth), truth))  # = mean |acc| of the truth
-        truth_lost.append(pa_acceleration_error(smoothed(truth, TRUTH_SIGMA), truth))
+        truth_acc.append(1000 * acceleration_error(np.zeros_like(truth), truth))  # = mean |acc| of the truth
+        truth_lost.append(1000 * pa_acceleration_error(smoothed(truth, TRUTH_SIGMA), truth))
         for name, fn in make.items():
             src = fn(estimate, truth)
-            per_run[name]["skeleton"].append({"mpjpe": mpjpe(src, truth), "pa_acc": pa_acceleration_error(src, truth)})
+            per_run[name]["skeleton"].append({"mpjpe": mpjpe(src, truth),
+                                              ACC: 1000 * pa_acceleration_error(src, truth)})
             rest = estimated_rest(src, found)
             for kind in RETARGETERS:
                 r = score(run.motion, run.target, src, rest, kind)
-                per_run[name][kind].append({"mpjpe": r["mpjpe"], "pa_acc": r["pa_acc"]})
+                per_run[name][kind].append({"mpjpe": r["mpjpe"], ACC: r[ACC]})
         if progress is not None:
             progress(run.name)
-    mean = {name: {k: {m: float(np.mean([r[m] for r in rows])) for m in ("mpjpe", "pa_acc")}
+    mean = {name: {k: {m: float(np.mean([r[m] for r in rows])) for m in ("mpjpe", ACC)}
                    for k, rows in by_kind.items()} for name, by_kind in per_run.items()}
-    return {"variants": mean, "truth": {"acc": float(np.mean(truth_acc)),
-                                        "pa_acc_lost_to_smoothing": float(np.mean(truth_lost)), "sigma": TRUTH_SIGMA},
+    return {"variants": mean, "truth": {"acc_mm_per_frame2": float(np.mean(truth_acc)),
+                                        "pa_acc_lost_to_smoothing_mm_per_frame2": float(np.mean(truth_lost)),
+                                        "sigma": TRUTH_SIGMA},
             "runs": len(truth_acc), "lag": lag, "clips": len(clips), "frames": max_frames}
 
 
@@ -100,11 +105,11 @@ def format_budget(result: dict[str, Any]) -> str:
     lines = [f"{result['clips']} held-out clips x {result['frames']} frames, {result['runs']} runs, "
              f"skeleton stage lag {result['lag']}", "", head, "|" + "---|" * (head.count("|") - 1)]
     for name, v in result["variants"].items():
-        cells = " | ".join(f"{1000 * v[k]['mpjpe']:.1f} | {1000 * v[k]['pa_acc']:.2f}" for k in ("skeleton", *RETARGETERS))
+        cells = " | ".join(f"{1000 * v[k]['mpjpe']:.1f} | {v[k][ACC]:.2f}" for k in ("skeleton", *RETARGETERS))
         lines.append(f"| {name} | {cells} |")
     t = result["truth"]
-    lines += ["", f"Ground truth (source joints): mean |acceleration| {1000 * t['acc']:.2f} mm/frame^2; "
-              f"a centred Gaussian of {t['sigma']:g} frames on it alone gives PA-Acc {1000 * t['pa_acc_lost_to_smoothing']:.2f}.",
+    lines += ["", f"Ground truth (source joints): mean |acceleration| {t['acc_mm_per_frame2']:.2f} mm/frame^2; "
+              f"a centred Gaussian of {t['sigma']:g} frames on it alone gives PA-Acc {t['pa_acc_lost_to_smoothing_mm_per_frame2']:.2f}.",
               "Lengths in mm; PA-Acc in mm/frame^2 at 30 fps."]
     return "\n".join(lines)
 

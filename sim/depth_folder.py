@@ -20,6 +20,7 @@ from live.core.depth import intrinsics_matrix
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import DepthFrame
 from live.core.protocols import StreamInfo
+from live.core.timing import frame_interval_ns, seconds_between
 
 
 class DepthFolderSource:
@@ -49,7 +50,7 @@ class DepthFolderSource:
         if stamps is not None and len(stamps) != len(self.images):
             raise FormatError(f"timestamps_ns has {len(stamps)} entries for {len(self.images)} images",
                               path=str(meta_path))
-        period = int(round(1e9 / self.fps))
+        period = frame_interval_ns(self.fps)
         self.timestamps = [int(t) for t in stamps] if stamps is not None else [i * period for i in range(len(self.images))]
         self.name = name or self.folder.name or "folder"
         self.speed = speed
@@ -77,7 +78,7 @@ class DepthFolderSource:
             if stop.is_set():
                 return
             if self.speed:
-                delay = start + (t_ns - t0) / 1e9 / self.speed - time.monotonic()
+                delay = start + seconds_between(t0, t_ns) / self.speed - time.monotonic()
                 if delay > 0 and stop.wait(delay):
                     return
             img = self.read(i)

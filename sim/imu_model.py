@@ -19,6 +19,7 @@ from live.core.rotations import (
     quat_to_axis_angle,
 )
 from live.core.skeleton import NUM_JOINTS, default_rest_joints
+from live.core.timing import frame_interval_s
 
 GRAVITY = 9.81
 #: Earth field in the livecap world (x East, y Up, z South): 60 deg inclination, unit norm (a.u.).
@@ -131,7 +132,7 @@ def simulate_imus(motion, layout: dict[int, int], *, mounting: np.ndarray | None
 
     # Specific force: what an accelerometer at the joint measures, a - g, in the sensor frame.
     p = positions[:, joints]
-    dt = 1.0 / fps
+    dt = frame_interval_s(fps)
     a = np.gradient(np.gradient(p, dt, axis=0), dt, axis=0) if T >= 3 else np.zeros_like(p)
     f_world = a + np.array([0.0, GRAVITY, 0.0])
     inv = quat_conjugate(true_q)

@@ -32,6 +32,7 @@ from live.imu.layout import SuitLayout, load_suit_layout
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS
 from live.core.protocols import StreamInfo
+from live.core.timing import frame_offset_ns, seconds_between
 from sim.imu_model import ImuNoise, ImuTrack, SimpleMotion, simulate_imus
 
 PROTOCOLS = ("xbus", "lines")
@@ -154,17 +155,17 @@ class ImuStreamer:
                               root=np.concatenate([pre_root, clip_root]), rest_joints=rest)
         self.track = simulate_imus(motion, self.layout.as_dict(), mounting=self.mounting, noise=self.noise,
                                    seed=self.seed)
-        self._t0_ns = t_ns - int(round(len(pre) * 1e9 / self.rate_hz))
+        self._t0_ns = t_ns - frame_offset_ns(len(pre), self.rate_hz)
 
     def sample_time_ns(self, step: int) -> int:
-        return self._t0_ns + int(round(step * 1e9 / self.rate_hz))
+        return self._t0_ns + frame_offset_ns(step, self.rate_hz)
 
     def _encode(self, step: int) -> tuple[bytes, list[tuple[int, int, int, tuple]]]:
         """Bytes of one sample of every sensor, and (end offset, sensor, counter, quat) each."""
         tr = self.track
         out = bytearray()
         rows = []
-        t_s = (self.sample_time_ns(step) - self._t0_ns) / 1e9
+        t_s = seconds_between(self._t0_ns, self.sample_time_ns(step))
         for s, sensor in enumerate(tr.sensors.tolist()):
             q = tuple(float(v) for v in tr.quats[step, s])
             acc, gyro = tr.acc[step, s], tr.gyro[step, s]
@@ -245,7 +246,7 @@ class NoisySkeletonStage:
         if result.truth is None or result.depth is None:
             return False
         t = result.t_ns
-        dt = 0.0 if self._last_t is None else (t - self._last_t) / 1e9
+        dt = 0.0 if self._last_t is None else seconds_between(self._last_t, t)
         self._last_t = t
         joints = np.asarray(result.truth.joints, np.float64) + self.bias
         joints = joints + self.rng.normal(0.0, self.noise_m, joints.shape)
@@ -316,7 +317,7 @@ def write_suit_session(path, scene, *, protocol: str = "xbus", seed: int = 0, fr
 
     with SessionWriter(path, streams, start_wall_time_ns=0) as writer:
         for k in range(n):
-            t_ns = t0 + int(round(k * 1e9 / fps))
+            t_ns = t0 + frame_offset_ns(k, fps)
             for packet in suit.packets_until(k, t_ns):
                 writer.write(packet)
             joints = np.asarray(scene.joints[k], np.float32)

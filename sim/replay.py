@@ -15,6 +15,7 @@ from pathlib import Path
 from live.core.frames import MocapPacket
 from live.io.session import SessionReader
 from live.core.protocols import StreamInfo
+from live.core.timing import seconds_between
 
 
 class ReplaySource:
@@ -65,7 +66,7 @@ class ReplaySource:
                 t = frame.t_ns
                 if start_wall is None:
                     start_wall, start_t = time.monotonic(), t
-                due = start_wall + (t - start_t) / 1e9 / self.speed
+                due = start_wall + seconds_between(start_t, t) / self.speed
                 delay = due - time.monotonic()
                 if delay > 0 and stop.wait(delay):
                     break

@@ -21,6 +21,7 @@ import numpy as np
 
 from live.core.errors import UserInputError
 from live.core.skeleton import NUM_JOINTS
+from live.core.timing import frame_offset_ns
 from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, anny_phenotypes, body_by_name,
                                build_bodies, clip_motion, grounded_joints, plan_jobs, random_view, run_jobs,
                                save_cache, visible_joints)
@@ -60,7 +61,7 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
            "joints": np.zeros((f, NUM_JOINTS, 3), np.float32), "visible": np.zeros((f, NUM_JOINTS), bool),
            "t_ns": np.zeros(f, np.int64)}
     for k, i in enumerate(window):
-        t_ns = 1_000_000_000 + int(round(k * 1e9 / SEQUENCE_FPS))
+        t_ns = 1_000_000_000 + frame_offset_ns(k, SEQUENCE_FPS)
         depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
         person = finder.find(DepthFrame(t_ns=t_ns, sensor="sim", camera_to_world=camera.camera_to_world,
                                         depth_mm=depth_mm, intrinsics=camera.intrinsics))

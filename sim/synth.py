@@ -30,6 +30,7 @@ from live.motion.rig_mapping import Motion, load_motion, resample, trim_bind_pos
 from live.core.skeleton import JOINT_INDEX, pelvis_height
 from live.body.skinning import lbs
 from live.core.protocols import StreamInfo
+from live.core.timing import frame_offset_ns
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
 from sim.room import Room
 
@@ -191,7 +192,7 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
     with SessionWriter(out, streams, extra=extra, start_wall_time_ns=SYNTH_WALL_TIME_NS) as writer:
         writer.attach("body.npz", body_npz_bytes(body), create_time_ns=SYNTH_WALL_TIME_NS)
         for k, i in enumerate(range(first, last)):
-            t_ns = T0_NS + int(round(k * 1e9 / fps))
+            t_ns = T0_NS + frame_offset_ns(k, fps)
             if suit is not None:
                 for packet in suit.packets_until(i, t_ns):
                     writer.write(packet)

@@ -53,11 +53,11 @@ def test_budget_on_a_short_clip():
     assert result["runs"] == 4
     v = result["variants"]
     assert set(v) == {"as shipped", "error x 0", "offline Gaussian, sigma 1 frames"}
-    assert v["error x 0"]["skeleton"] == {"mpjpe": 0.0, "pa_acc": pytest.approx(0.0, abs=1e-12)}
+    assert v["error x 0"]["skeleton"] == {"mpjpe": 0.0, "pa_acc_mm_per_frame2": pytest.approx(0.0, abs=1e-12)}
     assert 0.005 < v["as shipped"]["skeleton"]["mpjpe"] < 0.2
     for row in v.values():
         for kind in ("analytic", "learned"):
-            assert np.isfinite(row[kind]["mpjpe"]) and row[kind]["pa_acc"] >= 0
-    assert result["truth"]["acc"] > 0
+            assert np.isfinite(row[kind]["mpjpe"]) and row[kind]["pa_acc_mm_per_frame2"] >= 0
+    assert result["truth"]["acc_mm_per_frame2"] > 0
     table = format_budget(result)
     assert "| as shipped |" in table and "4 runs" in table

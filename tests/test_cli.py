@@ -104,3 +104,23 @@ def test_importing_runtime_packages_never_imports_torch():
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.stdout.strip() == "False", out.stderr
+
+
+_BLAS_CHECK = """
+import os, sys
+import live.app.cli as cli
+assert "numpy" not in sys.modules
+assert [os.environ.get(v) for v in cli.BLAS_THREAD_VARIABLES] == [None, "3", None], "import changed the environment"
+assert cli.main([]) == 2  # no command: the help
+assert "numpy" not in sys.modules  # so the limits still apply to the commands' numpy
+assert [os.environ.get(v) for v in cli.BLAS_THREAD_VARIABLES] == ["1", "3", "1"]
+"""
+
+
+def test_the_cli_limits_blas_threads_in_main_not_on_import():
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    env["OMP_NUM_THREADS"] = "3"  # a user's own setting wins
+    proc = subprocess.run([sys.executable, "-c", _BLAS_CHECK], cwd=ROOT, env=env, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr

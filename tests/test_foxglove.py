@@ -16,7 +16,7 @@ from live.io.foxglove import (MAP_TO_WORLD, SCHEMAS, avatar_offset_for, decode_p
                            load_avatar_track, point_cloud_message, Track)
 from live.core.frames import AvatarPose, DepthFrame, FrameResult, GroundTruth, MocapPacket, SkeletonFrame
 from live.core.kinematics import forward_kinematics
-from live.io.results import ResultsWriter
+from live.io.results import ResultsWriter, read_skeleton
 from live.core.rotations import quat_from_axis_angle, quat_to_matrix
 from live.io.session import SessionReader, SessionWriter
 from live.core.skeleton import BONES, NUM_JOINTS, default_rest_joints
@@ -245,7 +245,7 @@ def _spheres(d):
 def test_skeletons_are_spheres_and_bone_line_lists(recorded):
     _, msgs = _read(recorded["out"])
     joints = recorded["joints"]
-    skel = np.load(recorded["results"] / "skeleton.npz")
+    skel = read_skeleton(recorded["results"] / "skeleton.npz")
     for i, (m, d) in enumerate(_of(msgs, "/ground_truth")):
         e = d["entities"][0]
         assert e["frame_id"] == "world" and e["id"] == "ground_truth"
@@ -255,10 +255,10 @@ def test_skeletons_are_spheres_and_bone_line_lists(recorded):
         pts = np.array([[p[a] for a in "xyz"] for p in line["points"]])
         np.testing.assert_allclose(pts, joints[i][np.array(BONES).ravel()], atol=1e-6)
     for i, (m, d) in enumerate(_of(msgs, "/skeleton")):
-        ok = np.isfinite(skel["joints"][i]).all(axis=1)
-        np.testing.assert_allclose(_spheres(d), skel["joints"][i][ok], atol=1e-6)
+        ok = np.isfinite(skel.joints[i]).all(axis=1)
+        np.testing.assert_allclose(_spheres(d), skel.joints[i][ok], atol=1e-6)
         alphas = [s["color"]["a"] for s in d["entities"][0]["spheres"]]
-        np.testing.assert_allclose(alphas, 0.3 + 0.7 * skel["confidence"][i][ok], atol=1e-6)
+        np.testing.assert_allclose(alphas, 0.3 + 0.7 * skel.confidence[i][ok], atol=1e-6)
         n_bones = sum(ok[p] and ok[c] for p, c in BONES)
         assert len(d["entities"][0]["lines"][0]["points"]) == 2 * n_bones
     assert len(_spheres(_of(msgs, "/skeleton")[2][1])) == NUM_JOINTS - 1  # the lost joint is left out

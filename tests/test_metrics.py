@@ -57,7 +57,8 @@ def test_acceleration_error_units_and_invariance():
     pred = np.zeros((10, 1, 3))
     pred[:, 0, 0] = 0.5 * 0.02 * t**2  # constant acceleration 0.02 m/frame^2
     assert metrics.acceleration_error(pred, gt) == pytest.approx(0.02)
-    assert metrics.acceleration_error(pred, gt, fps=30.0) == pytest.approx(0.02 * 900.0)
+    with pytest.raises(TypeError):  # one unit: per frame^2, never per second^2
+        metrics.acceleration_error(pred, gt, fps=30.0)
     # Constant velocity and offsets have no acceleration.
     lin = np.random.default_rng(4).normal(size=(1, 4, 3)) + t[:, None, None] * 0.1
     assert metrics.acceleration_error(lin + 3.0, lin * 0 + 1.0) == pytest.approx(0.0, abs=1e-12)

@@ -227,3 +227,12 @@ def test_mocap_only_pipeline_triggers_on_decoded_packets():
     c = Count()
     Pipeline([Suit()], [c], mode="every").run()
     assert c.n == 10
+
+
+def test_the_cloud_stage_counts_points_apart_from_the_stage_timings():
+    from live.pipeline.stages import CloudStage
+
+    results = []
+    Pipeline([ListSource(_clouds(3))], [CloudStage()], on_result=results.append).run()
+    assert [r.points for r in results] == [50, 50, 50]
+    assert all(list(r.latency_ms) == ["cloud"] for r in results)  # timings only: no point count among them

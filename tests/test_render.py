@@ -209,3 +209,13 @@ def test_video_sink_counts_errors_instead_of_raising(tmp_path):
         VideoSink(tmp_path / "missing" / "x.mp4")
     with pytest.raises(UserInputError):
         VideoSink(tmp_path / "x.mp4", fps=0)
+
+
+def test_captions_give_the_point_count_apart_from_the_timings():
+    from live.outputs.render import _captions
+
+    result = FrameResult(t_ns=2_000_000_000, latency_ms={"cloud": 2.0, "skeleton": 4.5}, points=12345)
+    left, right = _captions(result, t0_ns=1_000_000_000)
+    assert left == ["t   1.000 s", "no skeleton"]
+    assert right == ["cloud    2.0 ms", "skeleton    4.5 ms", "total    6.5 ms", "points 12345"]
+    assert _captions(FrameResult(t_ns=0), None)[1] == []

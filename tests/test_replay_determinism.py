@@ -5,6 +5,7 @@ import json
 import pytest
 
 from live.app.cli import main
+from live.io.results import read_avatar, read_skeleton
 from sim.synth import SynthOptions, synthesize
 
 
@@ -44,10 +45,9 @@ def test_lagging_replay_keeps_frame_times_scores_them_and_stays_deterministic(se
         outs.append(out)
     online = tmp_path / "online"
     assert main(["replay", str(session), "--out", str(online), "--quiet"]) == 0
-    with np.load(outs[0] / "skeleton.npz") as lag, np.load(online / "skeleton.npz") as now, \
-            np.load(outs[0] / "avatar.npz") as avatar:
-        t_lag, t_now, t_avatar = lag["t_ns"], now["t_ns"], avatar["t_ns"]
-        changed = not np.array_equal(lag["joints"], now["joints"])
+    lag, now = read_skeleton(outs[0] / "skeleton.npz"), read_skeleton(online / "skeleton.npz")
+    t_lag, t_now, t_avatar = lag.t_ns, now.t_ns, read_avatar(outs[0] / "avatar.npz").t_ns
+    changed = not np.array_equal(lag.joints, now.joints)
     # Frames of the online run, stamped with their own times, smoothed; the last two drained at
     # the session's end; after a gap in the finder's frames the lagging model goes on from the
     # newest frame old enough, as live. The avatar's poses are of the skeletons' instants.

@@ -79,6 +79,10 @@ def test_report_and_errors(motion, bodies):
     r = evaluate_retarget(motion, bodies[0], bodies[1], max_frames=10)
     text = format_report([r, r])
     assert text.count("| analytic |") == 2 and "| reference |" in text and "158.0" in text
+    # Acceleration errors are in mm/frame^2, the unit in the key, printed as they are.
+    assert {"acc_mm_per_frame2", "pa_acc_mm_per_frame2"} <= set(r) and not {"acc", "pa_acc"} & set(r)
+    assert "| 158.0 | 43.0 | 21.0 | 8.0 | 134.0 | 40.0 | 0.524 |" in text
+    assert f"| {r['acc_mm_per_frame2']:.1f} | {r['pa_acc_mm_per_frame2']:.1f} |" in text
     with pytest.raises(UserInputError):
         evaluate_retarget(motion, bodies[0], bodies[1], from_="imu", max_frames=10)
     with pytest.raises(UserInputError):

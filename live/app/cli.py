@@ -8,12 +8,6 @@ import os
 import sys
 from pathlib import Path
 
-# The pipeline's matrices are small and it runs its own threads: BLAS thread pools only fight
-# them for the two cores (LBS is 4x faster single-threaded on a busy 2-core machine). Set before
-# numpy is imported; a user's explicit setting wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
 from live import __version__
 from live.core.errors import LivecapError
 
@@ -190,7 +184,21 @@ def _command(name: str):
     return getattr(module, f"cmd_{name.replace('-', '_')}")
 
 
+#: BLAS / OpenMP thread pools the CLI limits to one thread.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_blas_threads() -> None:
+    """One BLAS thread unless the user set otherwise. The pipeline's matrices are small and it runs
+    its own threads: BLAS thread pools only fight them for the cores (LBS is 4x faster
+    single-threaded on a busy 2-core machine). Takes effect only before numpy is first imported,
+    so ``main`` calls it before importing any command (importing this module changes nothing)."""
+    for var in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(var, "1")
+
+
 def main(argv: list[str] | None = None) -> int:
+    limit_blas_threads()
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="livecap: %(message)s")

@@ -9,6 +9,7 @@ from pathlib import Path
 from live.app.running import DEMO_SESSION, count_trigger_frames, parse_speed, run_pipeline, write_stats
 from live.app.sources import open_replay, open_source
 from live.core.errors import UserInputError
+from live.core.report import p50_p95
 
 
 def _run_options(args, out: Path, video: Path | None = None):
@@ -75,14 +76,14 @@ def _print_summary(stats: dict) -> None:
     for name, st in stats["stages"].items():
         lat = st["latency_ms"]
         if lat.get("count"):
-            rows.append((f"{name} p50/p95 ms", f"{lat['p50']:.2f} / {lat['p95']:.2f}"))
+            rows.append((f"{name} p50/p95 ms", p50_p95(lat)))
     acc = stats.get("accuracy") or {}
     if acc.get("frames_scored"):
         rows.append(("skeleton MPJPE / PA-MPJPE", f"{acc['mpjpe_mm']:.1f} / {acc['pa_mpjpe_mm']:.1f} mm "
                      f"({acc['frames_scored']} frames with ground truth)"))
     e2e = stats["end_to_end"]["latency_ms"]
     if e2e.get("count"):
-        rows.append(("end-to-end p50/p95 ms", f"{e2e['p50']:.2f} / {e2e['p95']:.2f}"))
+        rows.append(("end-to-end p50/p95 ms", p50_p95(e2e)))
     if stats.get("skeleton_lag_ms"):
         rows.append(("skeleton lag", f"{stats['skeleton_lag_ms']:.0f} ms (--lag: each skeleton is of an earlier "
                      "frame; add it to the latencies above)"))

@@ -113,7 +113,8 @@ class GroundTruth:
 class FrameResult:
     """Everything the pipeline produced for one sensor frame, handed to every sink.
 
-    t_ns is the sensor timestamp of the frame; latency_ms maps stage name -> milliseconds spent.
+    t_ns is the sensor timestamp of the frame; latency_ms maps stage name -> milliseconds spent
+    (stage timings only); points: how many depth points the cloud stage turned into a world cloud.
     """
 
     t_ns: int
@@ -123,3 +124,4 @@ class FrameResult:
     mocap: MocapPacket | None = None
     truth: GroundTruth | None = None
     latency_ms: dict[str, float] = field(default_factory=dict)
+    points: int | None = None

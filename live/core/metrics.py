@@ -1,16 +1,17 @@
 """Evaluation metrics for skeletons and meshes, float64, pure numpy (+ one cKDTree for MDEL).
 
 Shapes: joints / vertices T x N x 3 in metres (a single frame N x 3 also works). Every metric
-returns metres (or metres per second squared for the acceleration errors, see below) as a
-Python float averaged over frames and points, except ``per_joint_mpjpe`` (N,).
+returns metres (metres per frame^2 for the acceleration errors) as a Python float averaged over
+frames and points, except ``per_joint_mpjpe`` (N,). Reports give them in mm and mm/frame^2, the
+unit in the key (``mpjpe_mm``, ``acc_mm_per_frame2``).
 
 * MPJPE: mean Euclidean distance between corresponding joints.
 * PA-MPJPE: MPJPE after aligning each predicted frame to the ground truth with the best
   similarity transform (rotation, uniform scale, translation; Umeyama / orthogonal Procrustes).
 * PCK: fraction of joints closer than ``threshold`` metres.
-* Acc error: mean norm of the difference of the second finite differences of pred and gt. We
-  report it in m/s^2 (second difference times fps^2) when ``fps`` is given; with ``fps=None`` it
-  is in metres per frame^2 (the unit used by papers that report "Acc" without a frame rate).
+* Acc error: mean norm of the difference of the second finite differences of pred and gt, in
+  metres per frame^2 at the motion's own frame rate (the unit of papers that report "Acc"
+  without a frame rate).
 * MPVD / PA-MPVD: MPJPE / PA-MPJPE over mesh vertices.
 * MDEL: mean absolute change of the lengths of the edges from each point to its k nearest
   neighbours, the neighbours found once on the reference (rest / T-pose) point set.
@@ -81,24 +82,21 @@ def pck(pred: np.ndarray, gt: np.ndarray, threshold: float = 0.1) -> float:
     return float((np.linalg.norm(pred - gt, axis=-1) < threshold).mean())
 
 
-def acceleration_error(pred: np.ndarray, gt: np.ndarray, fps: float | None = None) -> float:
-    """Mean norm of (second difference of pred - that of gt) over T-2 frames and J joints.
-
-    Units: m/s^2 when ``fps`` is given (differences scaled by fps^2), m/frame^2 when None.
-    Needs T >= 3.
+def acceleration_error(pred: np.ndarray, gt: np.ndarray) -> float:
+    """Mean norm (m/frame^2) of (second difference of pred - that of gt) over T-2 frames and J
+    joints. Needs T >= 3.
     """
     pred, gt = _pair(pred, gt)
     if len(pred) < 3:
         raise UserInputError("acceleration error needs at least 3 frames")
     acc = (pred[2:] - 2.0 * pred[1:-1] + pred[:-2]) - (gt[2:] - 2.0 * gt[1:-1] + gt[:-2])
-    err = float(np.linalg.norm(acc, axis=-1).mean())
-    return err if fps is None else err * float(fps) ** 2
+    return float(np.linalg.norm(acc, axis=-1).mean())
 
 
-def pa_acceleration_error(pred: np.ndarray, gt: np.ndarray, fps: float | None = None) -> float:
-    """``acceleration_error`` after per-frame Procrustes alignment of pred onto gt."""
+def pa_acceleration_error(pred: np.ndarray, gt: np.ndarray) -> float:
+    """``acceleration_error`` (m/frame^2) after per-frame Procrustes alignment of pred onto gt."""
     pred, gt = _pair(pred, gt)
-    return acceleration_error(procrustes_align(pred, gt), gt, fps)
+    return acceleration_error(procrustes_align(pred, gt), gt)
 
 
 def mpvd(pred_vertices: np.ndarray, gt_vertices: np.ndarray) -> float:

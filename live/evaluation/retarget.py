@@ -5,9 +5,10 @@ leg-length ratio (CONVENTIONS.md), skinned with the target's true weights. Predi
 put on the source body (same convention), then either its exact joints (``from_="skeleton"``) or
 the whole chain from a virtual depth camera (``from_="depth"``: SyntheticScene -> SkeletonStage
 -> retargeter), retargeted online frame by frame (analytic or learned), skinned by LBS with the
-target's weights. Metrics (live/core/metrics.py): MPJPE, PA-MPJPE, Acc, PA-Acc (m/frame^2 at the
-evaluation rate, the reference's unit) on joints; MPVD, PA-MPVD, MDEL (edges to each vertex's 6
-nearest T-pose neighbours, lengths compared with the ground truth's per frame) on vertices.
+target's weights. Metrics (live/core/metrics.py): MPJPE, PA-MPJPE, Acc, PA-Acc (mm/frame^2 at
+the evaluation rate, keys ``acc_mm_per_frame2``, ``pa_acc_mm_per_frame2``) on joints; MPVD,
+PA-MPVD, MDEL (edges to each vertex's 6 nearest T-pose neighbours, lengths compared with the
+ground truth's per frame) on vertices; lengths in metres.
 """
 
 from __future__ import annotations
@@ -22,12 +23,15 @@ import numpy as np
 from live.core.errors import UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.skeleton import pelvis_height
+from live.core.timing import frame_offset_ns
 from live.core import assets
 
 #: The reference method's figures (SMPL test set, naked targets), for the report.
-REFERENCE = {"mpjpe": 0.158, "pa_mpjpe": 0.043, "acc": 0.021, "pa_acc": 0.008, "mpvd": 0.134,
-             "pa_mpvd": 0.040, "mdel": 0.000524}
-METRICS = ("mpjpe", "pa_mpjpe", "acc", "pa_acc", "mpvd", "pa_mpvd", "mdel")
+REFERENCE = {"mpjpe": 0.158, "pa_mpjpe": 0.043, "acc_mm_per_frame2": 21.0, "pa_acc_mm_per_frame2": 8.0,
+             "mpvd": 0.134, "pa_mpvd": 0.040, "mdel": 0.000524}
+#: Acceleration errors, in mm/frame^2 (the other metrics are lengths in metres).
+ACC_METRICS = ("acc_mm_per_frame2", "pa_acc_mm_per_frame2")
+METRICS = ("mpjpe", "pa_mpjpe", *ACC_METRICS, "mpvd", "pa_mpvd", "mdel")
 
 
 def grounded(motion):
@@ -81,7 +85,7 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
     out = np.full((scene.num_frames, 22, 3), np.nan)
     frame_at: dict[int, int] = {}
     for i in range(scene.num_frames):
-        t_ns = 1_000_000_000 + int(round(i * 1e9 / motion.fps))
+        t_ns = 1_000_000_000 + frame_offset_ns(i, motion.fps)
         frame_at[t_ns] = i
         sk = stage.estimate(scene.depth(i, t_ns))
         if sk is not None:
@@ -127,7 +131,7 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
     source_body / target_body: Body or a spec for live.body.library.load_body. from_: "skeleton" (exact
     source joints) or "depth" (virtual camera + skeleton regressor). retarget: "analytic" or
     "learned" (``model``: .onnx path, default the committed one). Returns a dict with the metrics
-    in metres (Acc, PA-Acc in m/frame^2), frames, fps, names and settings, and how many leading
+    in metres (Acc, PA-Acc in mm/frame^2), frames, fps, names and settings, and how many leading
     bind-pose frames of the clip (at its own rate) were cut."""
     from live.body.library import load_body
     from live.motion.rig_mapping import load_motion, trim_bind_pose
@@ -191,7 +195,8 @@ def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, ret
     edges = knn_edges(np.asarray(tgt.vertices, np.float64), 6)
     return {
         "mpjpe": mpjpe(joints, gt_joints), "pa_mpjpe": pa_mpjpe(joints, gt_joints),
-        "acc": acceleration_error(joints, gt_joints), "pa_acc": pa_acceleration_error(joints, gt_joints),
+        "acc_mm_per_frame2": 1000 * acceleration_error(joints, gt_joints),
+        "pa_acc_mm_per_frame2": 1000 * pa_acceleration_error(joints, gt_joints),
         "mpvd": mpvd(verts, gt_verts), "pa_mpvd": pa_mpvd(verts, gt_verts),
         "mdel": _mdel(verts, gt_verts, edges),
         "frames": int(motion.num_frames), "fps": float(fps), "motion": motion.name,
@@ -214,7 +219,8 @@ def format_report(results: dict[str, Any] | list[dict[str, Any]], reference: boo
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
 
     def fmt(r: dict) -> str:
-        return " | ".join(f"{1000 * r[m]:.1f}" if m != "mdel" else f"{1000 * r[m]:.3f}" for m in METRICS)
+        return " | ".join(f"{r[m]:.1f}" if m in ACC_METRICS else f"{1000 * r[m]:.3f}" if m == "mdel"
+                          else f"{1000 * r[m]:.1f}" for m in METRICS)
 
     for r in rows:
         name = r["retarget"] + ("" if r.get("feet", True) else ", no foot lock / floor")

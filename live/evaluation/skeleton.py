@@ -3,7 +3,7 @@
 ``evaluate_sessions(paths)`` replays each session's depth frames through a fresh
 ``SkeletonStage`` (frame by frame, as live) and compares every produced skeleton with the
 ground truth of that frame (the gt channel): MPJPE and PA-MPJPE (mm), per-joint MPJPE,
-PCK@10cm, acceleration error (m/s^2, over runs of consecutive frames), stage latency
+PCK@10cm, acceleration error (mm/frame^2, over runs of consecutive frames), stage latency
 p50/p95/p99 (ms), and how many frames had no skeleton. ``compare_baseline=True`` runs the
 reference PointNet (models/weights/skeleton_baseline.onnx) beside the shipped model.
 """
@@ -18,6 +18,7 @@ import numpy as np
 from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth
 from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe, pck, per_joint_mpjpe
+from live.core.report import percentiles
 from live.core.skeleton import JOINT_NAMES
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonStage
 
@@ -40,13 +41,8 @@ def session_frames(path: str | Path) -> list[tuple[DepthFrame, GroundTruth]]:
     return pairs
 
 
-def _percentiles(ms: list[float]) -> dict:
-    a = np.asarray(ms, np.float64)
-    return {f"p{q}": round(float(np.percentile(a, q)), 3) for q in (50, 95, 99)} if len(a) else {}
-
-
 def _acc_error(pred: np.ndarray, gt: np.ndarray, t_ns: np.ndarray) -> float | None:
-    """Acceleration error over the longest-possible runs of consecutive produced frames."""
+    """Acceleration error (m/frame^2) over the longest-possible runs of consecutive produced frames."""
     if len(t_ns) < 3:
         return None
     dt = np.diff(t_ns)
@@ -55,7 +51,7 @@ def _acc_error(pred: np.ndarray, gt: np.ndarray, t_ns: np.ndarray) -> float | No
     errs, weights = [], []
     for s, e in zip(np.r_[0, breaks], np.r_[breaks, len(t_ns)]):
         if e - s >= 3:
-            errs.append(acceleration_error(pred[s:e], gt[s:e], fps=1e9 / step))
+            errs.append(acceleration_error(pred[s:e], gt[s:e]))
             weights.append(e - s - 2)
     return float(np.average(errs, weights=weights)) if errs else None
 
@@ -90,7 +86,7 @@ def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]]
                 acc.append(a)
                 acc_w.append(len(p))
     out = {"model": str(model_path), "frames": frames, "no_skeleton": missing,
-           "latency_ms": _percentiles(latency)}
+           "latency_ms": percentiles(latency, digits=3)}
     if not preds:
         return out
     pred, gt = np.concatenate(preds), np.concatenate(gts)
@@ -98,7 +94,7 @@ def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]]
         "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
         "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1),
         "pck_10cm": round(pck(pred, gt, 0.1), 4),
-        "acc_error_m_s2": round(float(np.average(acc, weights=acc_w)), 2) if acc else None,
+        "acc_mm_per_frame2": round(1000 * float(np.average(acc, weights=acc_w)), 2) if acc else None,
         "per_joint_mm": {n: round(1000 * float(e), 1) for n, e in zip(JOINT_NAMES, per_joint_mpjpe(pred, gt))},
     })
     return out
@@ -127,7 +123,7 @@ def format_report(report: dict) -> str:
     models = report["models"]
     names = list(models)
     rows = [("frames", "frames"), ("no skeleton", "no_skeleton"), ("MPJPE (mm)", "mpjpe_mm"),
-            ("PA-MPJPE (mm)", "pa_mpjpe_mm"), ("PCK@10cm", "pck_10cm"), ("Acc err (m/s^2)", "acc_error_m_s2")]
+            ("PA-MPJPE (mm)", "pa_mpjpe_mm"), ("PCK@10cm", "pck_10cm"), ("Acc (mm/frame^2)", "acc_mm_per_frame2")]
     width = max(12, *(len(n) + 2 for n in names))
     lines = [f"{len(report['sessions'])} session(s)", f"{'':<18}" + "".join(f"{n:>{width}}" for n in names)]
     for label, key in rows:

@@ -23,6 +23,7 @@ from live.core.heading import wrap_angle, yaw_between
 from live.core.kinematics import joints_from_global_quats, local_rotations
 from live.core.rotations import quat_between, quat_identity, quat_multiply, quat_rotate, quat_slerp
 from live.core.skeleton import ANCESTORS, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, joints_from_offsets, rest_offsets
+from live.core.timing import frame_interval_s, seconds_between
 from live.imu.calibration import Calibration
 from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals
 from live.retarget.analytic import estimate_rest_joints
@@ -178,7 +179,7 @@ class Fuser:
     def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None) -> tuple[SuitPose, np.ndarray]:
         """quats (S, 4) at t_ns -> (fused pose, confidence (22,)). depth None: the suit alone,
         with the heading and proportions learned so far."""
-        dt = 1 / 30 if self._last_t is None else max((t_ns - self._last_t) / 1e9, 1e-4)
+        dt = frame_interval_s(30) if self._last_t is None else max(seconds_between(self._last_t, t_ns), 1e-4)
         self._last_t = t_ns
         rest = self.rest_joints()
         offs = rest_offsets(rest)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import base64
 import heapq
 import json
-import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +36,7 @@ from live import __version__
 from live.core.errors import FormatError, UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import matrix_to_quat
+from live.io.results import read_avatar, read_skeleton
 from live.io.session import SessionReader
 from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
 
@@ -234,54 +234,28 @@ class Track:
     confidence: np.ndarray | None = None
 
 
-def _load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    # np.load fails on a foreign or damaged file with any of these, depending on the damage.
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise FormatError(f"not a readable .npz file ({exc})", path=str(path)) from exc
-    missing = [k for k in keys if k not in arrays]
-    if missing:
-        raise FormatError(f"missing arrays {', '.join(missing)}", path=str(path))
-    return arrays
-
-
-def _shaped(path: Path, z: dict[str, np.ndarray], key: str, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
-    a = z[key]
-    if a.shape != shape:
-        raise FormatError(f"{key} is {a.shape}, expected {shape}", path=str(path))
-    return a.astype(dtype)
-
-
-def _sorted_track(path: Path, z: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t_ns = z["t_ns"].astype(np.int64).reshape(-1)
-    joints = _shaped(path, z, "joints", (len(t_ns), NUM_JOINTS, 3)).copy()
-    order = np.argsort(t_ns, kind="stable")  # merging with the session needs time order
-    return t_ns[order], joints[order], order
-
-
 def load_skeleton_track(path: str | Path) -> Track:
-    """DIR/skeleton.npz -> Track (with confidence), in time order."""
-    path = Path(path)
-    z = _load_npz(path, ("t_ns", "joints", "confidence"))
-    t_ns, joints, order = _sorted_track(path, z)
-    return Track(t_ns, joints, _shaped(path, z, "confidence", (len(t_ns), NUM_JOINTS))[order])
+    """DIR/skeleton.npz (checked by live.io.results.read_skeleton) -> Track with confidence, in
+    time order (merging with the session needs it)."""
+    skel = read_skeleton(path)
+    order = np.argsort(skel.t_ns, kind="stable")
+    return Track(skel.t_ns[order], skel.joints.astype(np.float64)[order], skel.confidence.astype(np.float64)[order])
 
 
 def load_avatar_track(path: str | Path) -> Track:
-    """DIR/avatar.npz -> Track in time order; frames whose stored joints are missing (NaN) are
-    rebuilt by forward kinematics from their rotations, root and the avatar's rest joints."""
-    path = Path(path)
-    z = _load_npz(path, ("t_ns", "rotations", "root", "joints", "rest_joints"))
-    t_ns, joints, order = _sorted_track(path, z)
+    """DIR/avatar.npz (checked by live.io.results.read_avatar) -> Track in time order; frames whose
+    stored joints are missing (NaN) are rebuilt by forward kinematics from their rotations, root
+    and the avatar's rest joints."""
+    avatar = read_avatar(path)
+    order = np.argsort(avatar.t_ns, kind="stable")
+    joints = avatar.joints.astype(np.float64)[order]
     missing = ~np.isfinite(joints).all(axis=(1, 2))
     if missing.any():
-        rotations = _shaped(path, z, "rotations", (len(t_ns), NUM_JOINTS, 4))[order]
-        root = _shaped(path, z, "root", (len(t_ns), 3))[order]
-        rest = _shaped(path, z, "rest_joints", (NUM_JOINTS, 3))
-        joints[missing], _ = forward_kinematics(rotations[missing], root[missing], rest)
-    return Track(t_ns, joints)
+        rotations = avatar.rotations.astype(np.float64)[order]
+        root = avatar.root.astype(np.float64)[order]
+        joints[missing], _ = forward_kinematics(rotations[missing], root[missing],
+                                                avatar.rest_joints.astype(np.float64))
+    return Track(avatar.t_ns[order], joints)
 
 
 def avatar_offset_for(avatar: Track, performer: Track | None, camera_to_world: np.ndarray | None,

@@ -1,25 +1,211 @@
 """The replay's result files: skeleton.npz, avatar.npz, avatar.bvh (contracts in CONVENTIONS.md).
 
-A sink that keeps every result's arrays and writes them when closed. Files depend only on the
-frames' content (no wall-clock fields), so two replays of a session give identical bytes.
+``ResultsWriter`` is a sink. About once a second it appends the frames it holds to chunk files
+in ``DIR/results.partial/`` and forgets them, so an open-ended run keeps little in memory and a
+run that dies loses at most the last second; ``close`` assembles the final files from the chunks
+and removes them. After a crash, ``assemble_results(DIR)`` (or ``python -m live.io.results DIR``)
+writes the files from what the chunks hold. Files depend only on the frames' content (no wall-clock fields),
+so two replays of a session give identical bytes, however the frames were chunked.
+
+``read_skeleton`` / ``read_avatar`` load the final files and check them against the contract
+(array names, shapes, dtypes): a file that breaks it raises FormatError.
 """
 
 from __future__ import annotations
 
+import os
+import shutil
+import sys
+import time
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from live.core.errors import FormatError
 from live.core.frames import FrameResult
-from live.core.skeleton import PARENTS
+from live.core.skeleton import NUM_JOINTS, PARENTS
+
+PARTIAL_DIR = "results.partial"
+_REST_FILE = "avatar_rest.npz"  # the avatar's rest joints and the frame rate, for avatar.bvh
+
+
+# ----------------------------------------------------------------------------------- the contract
+@dataclass(frozen=True)
+class SkeletonResults:
+    """skeleton.npz: the performer's skeleton per frame. t_ns (T,) int64; joints (T, 22, 3)
+    float32 world metres; confidence (T, 22) float32; camera_to_world (T, 4, 4) float32 when
+    the file stores the extrinsics each frame was solved in."""
+
+    t_ns: np.ndarray
+    joints: np.ndarray
+    confidence: np.ndarray
+    camera_to_world: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+@dataclass(frozen=True)
+class AvatarResults:
+    """avatar.npz: the avatar's pose per frame. t_ns (T,) int64; rotations (T, 22, 4) float32
+    local (w, x, y, z); root (T, 3) float32; joints (T, 22, 3) float32 world (NaN where not
+    computed); rest_joints (22, 3) float32 and parents (22,) of the avatar."""
+
+    t_ns: np.ndarray
+    rotations: np.ndarray
+    root: np.ndarray
+    joints: np.ndarray
+    rest_joints: np.ndarray
+    parents: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+def _load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    # np.load fails on a foreign or damaged file with any of these, depending on the damage.
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise FormatError(f"not a readable .npz file ({exc})", path=str(path)) from exc
+    missing = [k for k in keys if k not in arrays]
+    if missing:
+        raise FormatError(f"missing arrays {', '.join(missing)}", path=str(path))
+    return arrays
+
+
+def _checked(path: Path, z: dict[str, np.ndarray], key: str, shape: tuple[int, ...], kind: str = "f") -> np.ndarray:
+    """z[key] with the contract's shape and kind of dtype ("f" float -> float32, "i" integer ->
+    int64)."""
+    a = z[key]
+    if a.shape != shape:
+        raise FormatError(f"{key} is {a.shape}, expected {shape}", path=str(path))
+    if kind == "f" and a.dtype.kind != "f":
+        raise FormatError(f"{key} has dtype {a.dtype}, expected float32", path=str(path))
+    if kind == "i" and a.dtype.kind not in "iu":
+        raise FormatError(f"{key} has dtype {a.dtype}, expected int64", path=str(path))
+    return a.astype(np.float32 if kind == "f" else np.int64, copy=False)
+
+
+def _times(path: Path, z: dict[str, np.ndarray]) -> np.ndarray:
+    t = z["t_ns"]
+    if t.ndim != 1:
+        raise FormatError(f"t_ns is {t.shape}, expected (T,)", path=str(path))
+    return _checked(path, z, "t_ns", t.shape, "i")
+
+
+def read_skeleton(path: str | Path) -> SkeletonResults:
+    """DIR/skeleton.npz, checked against the contract (FormatError when it breaks it)."""
+    path = Path(path)
+    z = _load_npz(path, ("t_ns", "joints", "confidence"))
+    t_ns = _times(path, z)
+    n = len(t_ns)
+    c2w = _checked(path, z, "camera_to_world", (n, 4, 4)) if "camera_to_world" in z else None
+    return SkeletonResults(t_ns, _checked(path, z, "joints", (n, NUM_JOINTS, 3)),
+                           _checked(path, z, "confidence", (n, NUM_JOINTS)), c2w)
+
+
+def read_avatar(path: str | Path) -> AvatarResults:
+    """DIR/avatar.npz, checked against the contract (FormatError when it breaks it)."""
+    path = Path(path)
+    z = _load_npz(path, ("t_ns", "rotations", "root", "joints", "rest_joints", "parents"))
+    t_ns = _times(path, z)
+    n = len(t_ns)
+    parents = _checked(path, z, "parents", (NUM_JOINTS,), "i")
+    if not np.array_equal(parents, PARENTS):
+        raise FormatError("parents are not the canonical 22-joint skeleton's", path=str(path))
+    return AvatarResults(t_ns, _checked(path, z, "rotations", (n, NUM_JOINTS, 4)), _checked(path, z, "root", (n, 3)),
+                         _checked(path, z, "joints", (n, NUM_JOINTS, 3)),
+                         _checked(path, z, "rest_joints", (NUM_JOINTS, 3)), parents)
+
+
+# ----------------------------------------------------------------------------------- writing
+def _write_skeleton(out: Path, t_ns: np.ndarray, joints: np.ndarray, confidence: np.ndarray) -> Path:
+    p = out / "skeleton.npz"
+    np.savez_compressed(p, t_ns=t_ns, joints=joints, confidence=confidence)
+    return p
+
+
+def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.ndarray, joints: np.ndarray,
+                  avatar_rest_joints: np.ndarray | None, fps: float) -> list[Path]:
+    rest = (np.asarray(avatar_rest_joints, np.float32) if avatar_rest_joints is not None
+            else np.zeros((22, 3), np.float32))
+    p = out / "avatar.npz"
+    np.savez_compressed(p, t_ns=t_ns, rotations=rotations, root=root, joints=joints, rest_joints=rest, parents=PARENTS)
+    written = [p]
+    if avatar_rest_joints is not None:
+        from live.io.bvh import write_canonical_bvh
+
+        p = out / "avatar.bvh"
+        write_canonical_bvh(p, rotations, root, rest, fps)
+        written.append(p)
+    return written
+
+
+def _save_atomically(path: Path, **arrays: np.ndarray) -> None:
+    """An .npz that is either complete or absent, whenever the process dies."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+    os.replace(tmp, path)
+
+
+def _chunks(partial: Path, stream: str) -> list[dict[str, np.ndarray]]:
+    out = []
+    for p in sorted(partial.glob(f"{stream}-[0-9]*.npz"), key=lambda p: int(p.stem.rpartition("-")[2])):
+        with np.load(p, allow_pickle=False) as z:
+            out.append({k: z[k] for k in z.files})
+    return out
+
+
+def _joined(chunks: list[dict[str, np.ndarray]], key: str) -> np.ndarray:
+    return np.concatenate([c[key] for c in chunks])
+
+
+def assemble_results(out_dir: str | Path) -> list[Path]:
+    """Write skeleton.npz, avatar.npz (and avatar.bvh when the avatar's rest pose is known) from
+    the chunks in DIR/results.partial/, then remove them; returns the files written. What a
+    writer's close does, and after a crash what recovers all but about the last second."""
+    out = Path(out_dir)
+    partial = out / PARTIAL_DIR
+    if not partial.is_dir():
+        return []
+    written = []
+    skel = _chunks(partial, "skeleton")
+    if skel:
+        written.append(_write_skeleton(out, _joined(skel, "t_ns"), _joined(skel, "joints"), _joined(skel, "confidence")))
+    avatar = _chunks(partial, "avatar")
+    if avatar:
+        rest, fps = None, 30.0
+        if (partial / _REST_FILE).is_file():
+            with np.load(partial / _REST_FILE, allow_pickle=False) as z:
+                rest, fps = z["rest_joints"], float(z["fps"])
+        written += _write_avatar(out, _joined(avatar, "t_ns"), _joined(avatar, "rotations"), _joined(avatar, "root"),
+                                 _joined(avatar, "joints"), rest, fps)
+    shutil.rmtree(partial)
+    return written
 
 
 class ResultsWriter:
+    """A sink writing DIR/skeleton.npz, DIR/avatar.npz and DIR/avatar.bvh (see the module).
+
+    flush_every_s: how often (wall clock, ``clock``) the frames held go to a chunk file."""
+
     def __init__(self, out_dir: str | Path, *, avatar_rest_joints: np.ndarray | None = None,
-                 fps: float = 30.0):
+                 fps: float = 30.0, flush_every_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
         self.out = Path(out_dir)
         self.avatar_rest_joints = avatar_rest_joints
         self.fps = fps
+        self.flush_every_s = flush_every_s
+        self._clock = clock
+        self._last_flush: float | None = None
+        self._chunks_written = 0
         self.skel_t: list[int] = []
         self.skel_joints: list[np.ndarray] = []
         self.skel_conf: list[np.ndarray] = []
@@ -28,6 +214,10 @@ class ResultsWriter:
         self.av_root: list[np.ndarray] = []
         self.av_joints: list[np.ndarray] = []
         self.written: list[Path] = []
+
+    @property
+    def partial(self) -> Path:
+        return self.out / PARTIAL_DIR
 
     def send(self, result: FrameResult) -> None:
         if result.skeleton is not None:
@@ -41,25 +231,46 @@ class ResultsWriter:
             self.av_root.append(np.asarray(a.root, np.float32))
             self.av_joints.append(np.asarray(a.joints, np.float32) if a.joints is not None
                                   else np.full((22, 3), np.nan, np.float32))
+        now = self._clock()
+        if self._last_flush is None:
+            self._last_flush = now
+        elif now - self._last_flush >= self.flush_every_s:
+            self.flush()
+            self._last_flush = now
+
+    def flush(self) -> None:
+        """The frames held so far to chunk files (then forgotten here)."""
+        if not self.skel_t and not self.av_t:
+            return
+        if self._chunks_written == 0:
+            # A new run: chunks another run left in this folder are not its frames.
+            shutil.rmtree(self.partial, ignore_errors=True)
+            self.partial.mkdir(parents=True)
+            if self.avatar_rest_joints is not None:
+                _save_atomically(self.partial / _REST_FILE, rest_joints=np.asarray(self.avatar_rest_joints, np.float32),
+                                 fps=np.float64(self.fps))
+        k = self._chunks_written
+        if self.skel_t:
+            _save_atomically(self.partial / f"skeleton-{k:06d}.npz", t_ns=np.asarray(self.skel_t, np.int64),
+                             joints=np.stack(self.skel_joints), confidence=np.stack(self.skel_conf))
+        if self.av_t:
+            _save_atomically(self.partial / f"avatar-{k:06d}.npz", t_ns=np.asarray(self.av_t, np.int64),
+                             rotations=np.stack(self.av_rot), root=np.stack(self.av_root),
+                             joints=np.stack(self.av_joints))
+        self._chunks_written += 1
+        for held in (self.skel_t, self.skel_joints, self.skel_conf, self.av_t, self.av_rot, self.av_root,
+                     self.av_joints):
+            held.clear()
 
     def close(self) -> None:
+        """The last frames to a chunk, then the final files from all chunks."""
         self.out.mkdir(parents=True, exist_ok=True)
-        if self.skel_t:
-            p = self.out / "skeleton.npz"
-            np.savez_compressed(p, t_ns=np.asarray(self.skel_t, np.int64), joints=np.stack(self.skel_joints),
-                                confidence=np.stack(self.skel_conf))
-            self.written.append(p)
-        if self.av_t:
-            rest = (np.asarray(self.avatar_rest_joints, np.float32) if self.avatar_rest_joints is not None
-                    else np.zeros((22, 3), np.float32))
-            rotations, root = np.stack(self.av_rot), np.stack(self.av_root)
-            p = self.out / "avatar.npz"
-            np.savez_compressed(p, t_ns=np.asarray(self.av_t, np.int64), rotations=rotations, root=root,
-                                joints=np.stack(self.av_joints), rest_joints=rest, parents=PARENTS)
-            self.written.append(p)
-            if self.avatar_rest_joints is not None:
-                from live.io.bvh import write_canonical_bvh
+        self.flush()
+        if self._chunks_written:
+            self.written += assemble_results(self.out)
 
-                p = self.out / "avatar.bvh"
-                write_canonical_bvh(p, rotations, root, rest, self.fps)
-                self.written.append(p)
+
+if __name__ == "__main__":  # python -m live.io.results DIR: the result files a crashed run's chunks hold
+    for target in sys.argv[1:] or ["."]:
+        files = assemble_results(target)
+        print(f"{target}: " + (", ".join(p.name for p in files) if files else f"no {PARTIAL_DIR}/ to recover"))

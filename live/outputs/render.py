@@ -247,6 +247,8 @@ def _captions(result: FrameResult, t0_ns: int | None) -> tuple[list[str], list[s
     right = [f"{name} {ms:6.1f} ms" for name, ms in result.latency_ms.items()]
     if result.latency_ms:
         right.append(f"total {sum(result.latency_ms.values()):6.1f} ms")
+    if result.points is not None:
+        right.append(f"points {result.points}")
     return left, right
 
 

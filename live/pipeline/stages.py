@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.depth import points_to_world
-from live.core.frames import FrameResult
+from live.core.frames import AvatarPose, FrameResult, SkeletonFrame
+from live.retarget.interface import Retargeter
 
 
 class CloudStage:
@@ -25,7 +26,7 @@ class CloudStage:
             return False
         pts = result.depth.cloud()
         self.world_points = points_to_world(pts, result.depth.camera_to_world)
-        result.latency_ms.setdefault("points", float(len(pts)))
+        result.points = len(pts)
         return len(pts) > 0
 
 
@@ -60,10 +61,9 @@ class RetargetStage:
 
         mean_rest_template()
         self._seen: list[np.ndarray] = []
-        self._retargeter = None
-        self._last_t_ns: int | None = None
+        self._retargeter: Retargeter | None = None
 
-    def _make(self, rest: np.ndarray):
+    def _make(self, rest: np.ndarray) -> Retargeter:
         if self.kind == "learned":
             from live.retarget.learned import LearnedRetargeter
 
@@ -72,57 +72,39 @@ class RetargetStage:
 
         return AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock, hand_ik=self.hand_ik)
 
-    def _update_source(self, rest: np.ndarray) -> None:
-        """New performer proportions; motion state (contacts, twists, GRU state) is kept."""
-        from live.retarget.analytic import leg_ratio
-        from live.core.skeleton import pelvis_height
-
-        r = self._retargeter
-        if self.kind == "learned":
-            from live.retarget.learned import rest_features
-
-            r.source_rest = np.asarray(rest, np.float64)
-            r.src_leg = max(pelvis_height(r.source_rest), 1e-3)
-            r.ratio = r.tgt_leg / r.src_leg
-            r._src_feat = rest_features(r.source_rest)
-        else:
-            r.source = type(r.source).of(rest)
-            r.ratio = leg_ratio(r.source.rest_joints, r.target.rest_joints)
+    def _source_frame(self, result: FrameResult) -> SkeletonFrame | None:
+        """The performer's skeleton to retarget: the frame's (with ``use_truth`` its ground-truth
+        joints). Behind a lagging skeleton model it is of an earlier instant than the result's
+        (and, for the skeletons it gives at the end, of the frame's)."""
+        if not self.use_truth:
+            return result.skeleton
+        if result.truth is None:
+            return None
+        truth = result.truth
+        return SkeletonFrame(t_ns=truth.t_ns, joints=truth.joints, confidence=np.ones(len(truth.joints), np.float32))
 
     def process(self, result: FrameResult) -> bool:
-        from live.core.frames import AvatarPose
         from live.retarget.analytic import estimate_rest_joints
 
-        # The pose is of the skeleton's own instant: behind a lagging skeleton model that is an
-        # earlier frame than the result's (and, for the skeletons it gives at the end, the frame's).
-        if self.use_truth:
-            if result.truth is None:
-                return False
-            joints, t_ns = result.truth.joints, result.truth.t_ns
-        elif result.skeleton is not None:
-            joints, t_ns = result.skeleton.joints, result.skeleton.t_ns
-        else:
+        frame = self._source_frame(result)
+        if frame is None:
             return False
         if len(self._seen) < self.warmup:
-            self._seen.append(np.asarray(joints, np.float64))
+            self._seen.append(np.asarray(frame.joints, np.float64))
             rest = estimate_rest_joints(np.stack(self._seen))
             if self._retargeter is None:
                 self._retargeter = self._make(rest)
             else:
-                self._update_source(rest)
-        dt = None
-        if self._last_t_ns is not None and t_ns > self._last_t_ns:
-            dt = (t_ns - self._last_t_ns) / 1e9
-        self._last_t_ns = t_ns
-        root, rotations, avatar_joints = self._retargeter.step(joints, dt=dt)
+                self._retargeter.set_source_rest(rest)
+        pose = self._retargeter.process(frame)
         vertices = None
         if self.skin:
             from live.body.skinning import pose_transforms, skin
 
             # The retargeter's own global rotations and joints: no second FK from quaternions.
-            g = pose_transforms(self._retargeter.last_globals, avatar_joints, self.avatar.rest_joints)
+            g = pose_transforms(self._retargeter.last_globals, pose.joints, self.avatar.rest_joints)
             vertices = skin(self.avatar.vertices, self.avatar.weights, g[None])[0]
-        result.avatar = AvatarPose(t_ns=t_ns, root=np.asarray(root, np.float32),
-                                   rotations=np.asarray(rotations, np.float32),
-                                   joints=np.asarray(avatar_joints, np.float32), vertices=vertices)
+        result.avatar = AvatarPose(t_ns=pose.t_ns, root=np.asarray(pose.root, np.float32),
+                                   rotations=np.asarray(pose.rotations, np.float32),
+                                   joints=np.asarray(pose.joints, np.float32), vertices=vertices)
         return True

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from live.core.report import latency_summary
+
 _MAX_SAMPLES = 200_000
 
 
@@ -26,12 +28,8 @@ class LatencyRecorder:
                 self._values[k] = ms
 
     def summary(self) -> dict[str, float | int]:
-        if not self._values:
-            return {"count": 0}
-        v = np.asarray(self._values, dtype=np.float64)
-        p50, p95, p99 = np.percentile(v, [50, 95, 99])
-        return {"count": self.count, "mean": round(float(v.mean()), 4), "p50": round(float(p50), 4),
-                "p95": round(float(p95), 4), "p99": round(float(p99), 4), "max": round(float(v.max()), 4)}
+        """count (all measured), then mean, p50, p95, p99, max (ms) of the kept sample."""
+        return latency_summary(self._values, count=self.count)
 
 
 class StageStats:

@@ -22,6 +22,7 @@ import numpy as np
 
 from live.core.errors import UserInputError
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, pelvis_height
+from live.core.timing import frame_interval_s
 
 #: (ankle, foot) joint indices of the left and right foot.
 FEET = np.array(
@@ -82,7 +83,7 @@ def detect_contacts(
     if joints.ndim != 3 or joints.shape[1:] != (NUM_JOINTS, 3):
         raise UserInputError(f"joints must be (T, 22, 3), got {joints.shape}")
     det = ContactDetector(rest_joints, thresholds)
-    return np.stack([det.update(j[FEET[:, 0]], 1.0 / fps) for j in joints]) if len(joints) else np.zeros((0, 2), bool)
+    return np.stack([det.update(j[FEET[:, 0]], frame_interval_s(fps)) for j in joints]) if len(joints) else np.zeros((0, 2), bool)
 
 
 class FootLock:

@@ -18,8 +18,10 @@ from live.core.errors import ModelError, UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.core.kinematics import forward_kinematics, joints_from_global_matrices
 from live.retarget.feet import FootPlanter
+from live.retarget.interface import step_frame
 from live.core.rotations import matrix_to_quat, sixd_to_matrix
 from live.core.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
+from live.core.timing import FrameClock, frame_interval_s
 from live.core import assets
 
 DEFAULT_MODEL = assets.weight("retarget.onnx")
@@ -46,8 +48,16 @@ def source_features(joints: np.ndarray, prev_root: np.ndarray | None, rest_feat:
     return np.concatenate([pose.ravel(), dirs.ravel(), vel, [root[1] / leg], rest_feat]).astype(np.float32)
 
 
+def _rest_joints(name: str, rest: np.ndarray) -> np.ndarray:
+    rest = np.asarray(rest, np.float64)
+    if rest.shape != (NUM_JOINTS, 3):
+        raise UserInputError(f"{name} must be (22, 3), got {rest.shape}")
+    return rest
+
+
 class LearnedRetargeter:
-    """Stateful, frame-by-frame learned retargeter from a source body to a target body.
+    """Stateful, frame-by-frame learned retargeter from a source body to a target body (a
+    Retargeter, live/retarget/interface.py).
 
     model_path: the .onnx file (default models/weights/retarget.onnx); source_rest, target_rest:
     (22, 3) T-poses. fps: frame rate assumed when ``step`` is not given ``dt``. threads: onnxruntime
@@ -66,18 +76,13 @@ class LearnedRetargeter:
         if set(shapes) != {"source", "target", "h_enc", "h_dec"}:
             raise ModelError(f"{self.path.name}: expected inputs source, target, h_enc, h_dec; got {sorted(shapes)}")
         self._h_shapes = {k: tuple(int(d) for d in shapes[k]) for k in ("h_enc", "h_dec")}
-        self.source_rest = np.asarray(source_rest, np.float64)
-        self.target_rest = np.asarray(target_rest, np.float64)
-        for name, rest in (("source_rest", self.source_rest), ("target_rest", self.target_rest)):
-            if rest.shape != (NUM_JOINTS, 3):
-                raise UserInputError(f"{name} must be (22, 3), got {rest.shape}")
-        self.src_leg = max(pelvis_height(self.source_rest), 1e-3)
+        self.target_rest = _rest_joints("target_rest", target_rest)
         self.tgt_leg = max(pelvis_height(self.target_rest), 1e-3)
-        self.ratio = self.tgt_leg / self.src_leg
-        self._src_feat = rest_features(self.source_rest)
+        self.set_source_rest(source_rest)
         self._tgt_feat = rest_features(self.target_rest)[None]
         self._offsets = rest_offsets(self.target_rest)
-        self.dt = 1.0 / fps
+        self.dt = frame_interval_s(fps)
+        self.clock = FrameClock()
         self.feet = FootPlanter(self.target_rest, self._offsets, foot_lock=foot_lock, floor=floor)
         self.reset()
 
@@ -86,12 +91,19 @@ class LearnedRetargeter:
         """(2,) bool: left, right foot in contact on the last frame (with foot_lock)."""
         return self.feet.contact
 
+    def set_source_rest(self, rest_joints: np.ndarray) -> None:
+        """New performer proportions (rest joints (22, 3)); GRU states and contacts are kept."""
+        self.source_rest = _rest_joints("source_rest", rest_joints)
+        self.src_leg = max(pelvis_height(self.source_rest), 1e-3)
+        self.ratio = self.tgt_leg / self.src_leg
+        self._src_feat = rest_features(self.source_rest)
+
     def reset(self) -> None:
         """Forget the motion so far (GRU states, last root, foot contacts, last timestamp)."""
         self.h_enc = np.zeros(self._h_shapes["h_enc"], np.float32)
         self.h_dec = np.zeros(self._h_shapes["h_dec"], np.float32)
         self._prev_root: np.ndarray | None = None
-        self._last_t_ns: int | None = None
+        self.clock.reset()
         self.feet.reset()
         # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
         self.last_globals: np.ndarray | None = None
@@ -126,9 +138,7 @@ class LearnedRetargeter:
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
-        from live.retarget.retargeter import process_frame
-
-        return process_frame(self, frame)
+        return step_frame(self.step, frame, self.clock.tick(frame.t_ns))
 
 
 def learned_retarget_motion(model_path: str | Path | None, source_rest: np.ndarray, target_rest: np.ndarray,

@@ -17,28 +17,18 @@ from live.retarget.analytic import LIMBS, RestInfo, leg_ratio, solve_globals
 from live.retarget.contacts import ContactThresholds
 from live.retarget.feet import SOFT_IK, FootPlanter
 from live.retarget.ik import apply_limb_ik
+from live.retarget.interface import step_frame
 from live.core.rotations import matrix_to_quat, quat_to_matrix
 from live.core.skeleton import CHILDREN, NUM_JOINTS, PARENTS
+from live.core.timing import FrameClock, frame_interval_s
 
 _ARMS = np.array([limb[:3] for limb in LIMBS[2:]], dtype=np.int64)
 _ARM_HINGES = np.array([limb[3] for limb in LIMBS[2:]], dtype=np.float64)
 
 
-def process_frame(retargeter, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
-    """One frame through any retargeter with ``step`` and ``_last_t_ns`` (analytic, learned)."""
-    dt = None
-    if retargeter._last_t_ns is not None and frame.t_ns > retargeter._last_t_ns:
-        dt = (frame.t_ns - retargeter._last_t_ns) * 1e-9
-    retargeter._last_t_ns = frame.t_ns
-    if isinstance(frame, SkeletonFrame):
-        root, rot, joints = retargeter.step(frame.joints, dt=dt)
-    else:
-        root, rot, joints = retargeter.step(frame.rotations, frame.root, dt=dt)
-    return AvatarPose(t_ns=frame.t_ns, root=root, rotations=rot, joints=joints)
-
-
 class AnalyticRetargeter:
-    """Stateful, frame-by-frame retargeter from a source body to a target body.
+    """Stateful, frame-by-frame retargeter from a source body to a target body (a Retargeter,
+    live/retarget/interface.py).
 
     source_rest, target_rest: (22, 3) T-poses. foot_lock: hold feet in contact still and keep
     feet above y = 0 (floor clearance alone with ``floor=True, foot_lock=False``). hand_ik: wrists
@@ -61,11 +51,11 @@ class AnalyticRetargeter:
         thresholds: ContactThresholds = ContactThresholds(),
         soft_ik: float = SOFT_IK,
     ):
-        self.source = RestInfo.of(source_rest)
         self.target = RestInfo.of(target_rest)
-        self.ratio = leg_ratio(self.source.rest_joints, self.target.rest_joints)
+        self.set_source_rest(source_rest)
         self.hand_ik = hand_ik
-        self.dt = 1.0 / fps
+        self.dt = frame_interval_s(fps)
+        self.clock = FrameClock()
         self.feet = FootPlanter(self.target.rest_joints, self.target.offsets, foot_lock=foot_lock, floor=floor,
                                 blend_frames=blend_frames, thresholds=thresholds, soft_ik=soft_ik)
         self.reset()
@@ -75,11 +65,16 @@ class AnalyticRetargeter:
         """(2,) bool: left, right foot in contact on the last frame."""
         return self.feet.contact
 
+    def set_source_rest(self, rest_joints: np.ndarray) -> None:
+        """New performer proportions (rest joints (22, 3)); limb twists and contacts are kept."""
+        self.source = RestInfo.of(rest_joints)
+        self.ratio = leg_ratio(self.source.rest_joints, self.target.rest_joints)
+
     def reset(self) -> None:
         """Forget the motion so far (limb twists, contacts, locks, last timestamp)."""
         self.twist = np.zeros(len(LIMBS))
         self.feet.reset()
-        self._last_t_ns: int | None = None
+        self.clock.reset()
         # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
         self.last_globals: np.ndarray | None = None
 
@@ -122,7 +117,7 @@ class AnalyticRetargeter:
 
     def process(self, frame: SkeletonFrame | GroundTruth) -> AvatarPose:
         """Retarget a SkeletonFrame (joints) or GroundTruth (rotations + root); dt from t_ns."""
-        return process_frame(self, frame)
+        return step_frame(self.step, frame, self.clock.tick(frame.t_ns))
 
 
 def retarget_motion(

@@ -303,7 +303,7 @@ def train(net: RetargetNet, sampler: Sampler, minutes: float, max_steps: int, ba
 # ----------------------------------------------------------------------------------- validation
 def validate(onnx_path: Path, data: dict, clip_ids: np.ndarray, rests: np.ndarray, max_frames: int) -> dict:
     """Whole held-out clips on held-out body pairs, online (one ONNX step per frame), against the
-    analytic retargeter: MPJPE / PA-MPJPE / Acc (m, m/frame^2) averaged over (clip, pair)."""
+    analytic retargeter: MPJPE / PA-MPJPE / Acc (m, mm/frame^2) averaged over (clip, pair)."""
     from live.core.kinematics import forward_kinematics
     from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe
     from live.retarget.retargeter import retarget_motion
@@ -323,8 +323,8 @@ def validate(onnx_path: Path, data: dict, clip_ids: np.ndarray, rests: np.ndarra
             pred_l = np.stack([learned.step(j)[2] for j in src])
             pred_a = retarget_motion(ra, rb, joints=src, fps=FPS)[2]
             for name, pred in (("learned", pred_l), ("analytic", pred_a)):
-                res[name].append((mpjpe(pred, gt), pa_mpjpe(pred, gt), acceleration_error(pred, gt)))
-    return {k: dict(zip(("mpjpe_m", "pa_mpjpe_m", "acc_m_per_frame2"),
+                res[name].append((mpjpe(pred, gt), pa_mpjpe(pred, gt), 1000 * acceleration_error(pred, gt)))
+    return {k: dict(zip(("mpjpe_m", "pa_mpjpe_m", "acc_mm_per_frame2"),
                         (round(float(x), 5) for x in np.mean(v, axis=0)))) for k, v in res.items()}
 
 
