@@ -20,7 +20,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from live.io.bvh import bvh_forward_kinematics, read_bvh, write_bvh
+from live.io.bvh_kinematics import bvh_forward_kinematics
+from live.io.bvh_reader import read_bvh
+from live.io.bvh_writer import write_bvh
 from live.motion.rig_mapping import map_clip
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -58,7 +58,8 @@ def main() -> None:
     from live.body.library import list_presets, load_body
     from live.evaluation.retarget import _on_body, grounded
     from live.body.skinning_field import SkinningFieldModel
-    from live.motion.rig_mapping import load_motion, resample
+    from live.motion.clips import resample
+    from live.motion.rig_mapping import load_motion
     from live.body.skinning import lbs, pose_transforms, skin
 
     names = sorted(list_presets())

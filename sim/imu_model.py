@@ -66,7 +66,7 @@ class ImuTrack:
 
 @dataclass(frozen=True)
 class SimpleMotion:
-    """The fields of live.motion.rig_mapping.Motion that the IMU simulation needs."""
+    """The fields of live.motion.clips.Motion that the IMU simulation needs."""
 
     fps: float
     rotations: np.ndarray

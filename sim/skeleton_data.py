@@ -236,7 +236,8 @@ def random_view(job: Job, rng: np.random.Generator):
 def run_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
     from live.core.frames import DepthFrame
-    from models.skeleton.preprocess import PersonFinder, PreprocessConfig
+    from models.skeleton.preprocess import PersonFinder
+    from models.skeleton.preprocess_config import PreprocessConfig
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)

@@ -31,7 +31,7 @@ SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleare
 
 
 def _motion_at_fps(file: str):
-    from live.motion.rig_mapping import resample
+    from live.motion.clips import resample
 
     return resample(clip_motion(file), SEQUENCE_FPS)
 
@@ -40,7 +40,8 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's consecutive frames; arrays with a leading frame axis (F = SEQUENCE_FRAMES,
     frames past the end of a short clip are marked not found)."""
     from live.core.frames import DepthFrame
-    from models.skeleton.preprocess import PersonFinder, PreprocessConfig
+    from models.skeleton.preprocess import PersonFinder
+    from models.skeleton.preprocess_config import PreprocessConfig
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)

@@ -26,7 +26,9 @@ from live.body.library import Body, load_body, save_body
 from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth
 from live.core.kinematics import forward_kinematics
-from live.motion.rig_mapping import Motion, load_motion, resample, trim_bind_pose
+from live.motion.cleaning import trim_bind_pose
+from live.motion.clips import Motion, resample
+from live.motion.rig_mapping import load_motion
 from live.core.skeleton import JOINT_INDEX, pelvis_height
 from live.body.skinning import lbs
 from live.core.protocols import StreamInfo

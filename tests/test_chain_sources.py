@@ -22,7 +22,8 @@ def data():
     if not CLIP.is_file():
         pytest.skip("no CMU clips in ../shared")
     from live.evaluation.retarget import grounded
-    from live.motion.rig_mapping import load_motion, resample
+    from live.motion.clips import resample
+    from live.motion.rig_mapping import load_motion
 
     m = grounded(resample(load_motion(CLIP), 30.0))
     return {"rotations": m.rotations.astype(np.float32), "root": m.root.astype(np.float32),

@@ -15,7 +15,8 @@ from live.imu.stage import ImuSkeletonStage, build_stages
 from live.imu.suit_skeleton import ChainPlan, fill_globals
 from live.core.kinematics import forward_kinematics, global_rotations, joints_from_global_quats, local_rotations
 from live.pipeline.runner import Pipeline
-from live.motion.rig_mapping import load_motion, resample
+from live.motion.clips import resample
+from live.motion.rig_mapping import load_motion
 from live.core.rotations import quat_angle, quat_conjugate, quat_multiply
 from live.io.session import SessionReader
 from live.core.skeleton import JOINT_INDEX, default_rest_joints, rest_offsets

@@ -110,7 +110,8 @@ def test_missing_model_is_a_model_error(tmp_path):
 def test_committed_model_on_held_out_clip():
     """The committed network on a held-out CMU subject (12) moved to a much smaller body."""
     from live.evaluation.retarget import grounded
-    from live.motion.rig_mapping import load_motion, resample
+    from live.motion.clips import resample
+    from live.motion.rig_mapping import load_motion
 
     clip = BVH / "mb_12_01.bvh"
     if not clip.is_file():

@@ -9,12 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.io.bvh import (BvhSkeleton, bvh_forward_kinematics, clip_from_rotations, format_bvh,
-                      parse_bvh, read_bvh, write_canonical_bvh)
+from live.io.bvh_clip import BvhSkeleton
+from live.io.bvh_kinematics import bvh_forward_kinematics
+from live.io.bvh_reader import parse_bvh, read_bvh
+from live.io.bvh_writer import clip_from_rotations, format_bvh, write_canonical_bvh
 from live.core.errors import FormatError
 from live.core.kinematics import forward_kinematics
-from live.motion.rig_mapping import (BIND_POSE_JUMP_MPS, TABLES, Motion, auto_mapping, detect_rig, load_motion, map_clip,
-                              resample, source_joints, split_name, trim_bind_pose)
+from live.motion.auto_mapping import auto_mapping, split_name
+from live.motion.cleaning import BIND_POSE_JUMP_MPS, trim_bind_pose
+from live.motion.clips import Motion, resample
+from live.motion.rig_mapping import load_motion, map_clip, source_joints
+from live.motion.rig_tables import TABLES, detect_rig
 from live.core.rotations import (matrix_to_quat, quat_angle, quat_conjugate, quat_from_axis_angle,
                             quat_multiply, quat_to_matrix)
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
@@ -244,7 +249,7 @@ def test_resample(motions):
 
 def test_unknown_rig_name_is_a_format_error():
     rest = default_rest_joints()
-    from live.io.bvh import canonical_skeleton
+    from live.io.bvh_writer import canonical_skeleton
     sk = canonical_skeleton(rest)
     clip = clip_from_rotations(sk, 1 / 30, np.tile([1.0, 0, 0, 0], (2, 22, 1)), np.zeros((2, 3)))
     with pytest.raises(FormatError, match="unknown rig"):

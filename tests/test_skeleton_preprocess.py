@@ -8,7 +8,11 @@ import pytest
 from live.core.frames import DepthFrame
 from live.core.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
-from models.skeleton.preprocess import R2_STEP, R2_VISITS, BackgroundModel, PersonFinder, PreprocessConfig, r2_grid_order
+from models.skeleton import point_sample
+from models.skeleton.background import BackgroundModel
+from models.skeleton.point_sample import R2_STEP, R2_VISITS, fine_sample, r2_grid_order
+from models.skeleton.preprocess import PersonFinder
+from models.skeleton.preprocess_config import PreprocessConfig
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
 from sim.room import Box, Room, capsule_body
 
@@ -212,11 +216,13 @@ def test_fine_sample_draws_distinct_person_pixels_even_from_a_mostly_empty_box(m
     found = finder._search(f, cfg.coarse_stride, c2w, None, None, 10)
     h, w = (-(-n // cfg.coarse_stride) for n in f.depth_mm.shape)
     drawn = []
-    real = PersonFinder._person_points
-    monkeypatch.setattr(PersonFinder, "_person_points",
-                        lambda self, idx, *a: drawn.append(len(idx)) or real(self, idx, *a))
+    real = point_sample._person_points
+    monkeypatch.setattr(point_sample, "_person_points", lambda idx, *a: drawn.append(len(idx)) or real(idx, *a))
+    s = cfg.pixel_stride
+    rays = finder._world_rays(f.intrinsics, f.depth_mm[::s, ::s].shape, c2w, s)
     for box in (found.box, (0, h - 1, 0, w - 1)):  # the person's box; the whole image (person ~5 %)
-        pts = finder._fine_sample(f, c2w, box, found.labels, found.lab, found.origin, np.random.default_rng(3))
+        pts = fine_sample(f, c2w, box, found.labels, found.lab, found.origin, np.random.default_rng(3), rays, cfg,
+                          finder.background)
         assert pts.shape == (cfg.num_points, 3)
         assert len(np.unique(pts, axis=0)) == cfg.num_points  # without replacement
         # Every point lies in the person's cells, above the floor.

@@ -51,7 +51,8 @@ def walk():
 
 
 def test_regressor_single_and_batch_agree(walk):
-    from models.skeleton.preprocess import PersonFinder, PreprocessConfig
+    from models.skeleton.preprocess import PersonFinder
+    from models.skeleton.preprocess_config import PreprocessConfig
 
     reg = SkeletonRegressor()
     assert reg.num_points == reg.card["num_points"]

@@ -4,7 +4,8 @@ same bytes, and the session replays like a recorded one."""
 import numpy as np
 
 from live.body.library import load_body
-from live.motion.rig_mapping import load_motion, resample
+from live.motion.clips import resample
+from live.motion.rig_mapping import load_motion
 from live.io.session import SessionReader
 from live.core.skeleton import JOINT_INDEX as J
 from sim.synth import CameraPlacement, SynthOptions, SyntheticScene, synthesize

@@ -105,10 +105,12 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
 
 
 def prepare_motion(motion, fps: float = 30.0, max_frames: int | None = None):
-    """A Motion (or BVH path) without a leading bind pose (``rig_mapping.trim_bind_pose``: 76 of
+    """A Motion (or BVH path) without a leading bind pose (``cleaning.trim_bind_pose``: 76 of
     the 119 shared clips, three of the four held-out ones, start with a T-pose frame the take then
     leaves at 15-160 m/s), grounded, resampled to ``fps``, cut to its first ``max_frames``."""
-    from live.motion.rig_mapping import load_motion, resample, trim_bind_pose
+    from live.motion.cleaning import trim_bind_pose
+    from live.motion.clips import resample
+    from live.motion.rig_mapping import load_motion
 
     if isinstance(motion, (str, Path)):
         motion = load_motion(motion)
@@ -134,7 +136,8 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
     in metres (Acc, PA-Acc in mm/frame^2), frames, fps, names and settings, and how many leading
     bind-pose frames of the clip (at its own rate) were cut."""
     from live.body.library import load_body
-    from live.motion.rig_mapping import load_motion, trim_bind_pose
+    from live.motion.cleaning import trim_bind_pose
+    from live.motion.rig_mapping import load_motion
 
     if from_ not in ("skeleton", "depth"):
         raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")

@@ -140,7 +140,7 @@ def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.n
     np.savez_compressed(p, t_ns=t_ns, rotations=rotations, root=root, joints=joints, rest_joints=rest, parents=PARENTS)
     written = [p]
     if avatar_rest_joints is not None:
-        from live.io.bvh import write_canonical_bvh
+        from live.io.bvh_writer import write_canonical_bvh
 
         p = out / "avatar.bvh"
         write_canonical_bvh(p, rotations, root, rest, fps)

@@ -30,12 +30,13 @@ FPS = 30.0
 
 def skeleton_files_key() -> str:
     """Short hash of the shipped skeleton regressor, online temporal model and person finder."""
-    from models.skeleton import preprocess
+    from models.skeleton import background, floor, person_clusters, point_sample, preprocess, preprocess_config
     from models.skeleton.runtime import DEFAULT_MODEL
     from models.skeleton.temporal import DEFAULT_TEMPORAL_MODEL
 
+    finder = (preprocess, preprocess_config, background, floor, person_clusters, point_sample)
     h = hashlib.sha256()
-    for p in (DEFAULT_MODEL, DEFAULT_TEMPORAL_MODEL, Path(preprocess.__file__)):
+    for p in (DEFAULT_MODEL, DEFAULT_TEMPORAL_MODEL, *(Path(m.__file__) for m in finder)):
         h.update(Path(p).read_bytes())
     return h.hexdigest()[:12]
 
@@ -62,7 +63,7 @@ def run_chain(run: dict, data: dict, template: np.ndarray) -> dict:
     from live.core.kinematics import forward_kinematics
     from live.retarget.analytic import estimate_rest_joints
     from live.evaluation.retarget import depth_skeletons
-    from live.motion.rig_mapping import Motion
+    from live.motion.clips import Motion
     from sim.synth import CameraPlacement
 
     c = run["clip"]

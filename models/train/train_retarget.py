@@ -52,7 +52,8 @@ BATCH = 48
 def load_clips(cache: Path = CACHE / "retarget_clips_v2.npz") -> dict:
     """All clips at 30 fps: rotations (N,22,4), root (N,3), offsets (C+1,), rest (C,22,3),
     subject (C,) (-1 = none), names (C,). Cached; rebuilt when the clip list changes."""
-    from live.motion.rig_mapping import load_motion, resample
+    from live.motion.clips import resample
+    from live.motion.rig_mapping import load_motion
     from sim.skeleton_data import BVH_DIR, list_clips
 
     clips = list_clips()

@@ -1,0 +1,49 @@
+"""Settings of the person finder (``models.skeleton.preprocess.PersonFinder``): sample size and
+strides, range limits, the occupancy grid, the person tests, the motion cue and tracking."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class PreprocessConfig:
+    num_points: int = 512
+    pixel_stride: int = 2
+    # Depth images: find the person on a coarser stride, then draw the sample from the person's
+    # pixels at pixel_stride (the same points, ~4x less work). None: one pass at pixel_stride.
+    coarse_stride: int | None = 4
+    min_range_m: float = 0.3
+    max_range_m: float = 6.0
+    floor_margin_m: float = 0.03
+    seed_height_m: float = 0.2
+    cell_m: float = 0.05
+    grid_half_extent_m: float = 6.0
+    min_points: int = 120
+    min_height_m: float = 0.35
+    max_height_m: float = 2.4
+    min_narrow_top: float = 0.4
+    max_footprint_m: float = 1.8
+    background_margin_m: float = 0.10
+    # Motion cue: a cluster whose depth has not changed since a frame motion_lag_s ago (or the
+    # oldest frame kept, early on) scores static_weight times a moving one: furniture never
+    # moves, a performer does. A point moved when its depth changed by more than
+    # motion_change_m + 1 cm x z^2 (stereo noise grows with the square of the range); a cluster
+    # moves in proportion to its share of moved points above motion_noise_share (what noise and
+    # flickering edges give a still surface), fully at motion_full_share. A still performer
+    # next to still furniture gets no cue either way.
+    motion_lag_s: float = 0.3
+    motion_change_m: float = 0.05
+    motion_noise_share: float = 0.15
+    motion_full_share: float = 0.5
+    static_weight: float = 0.1
+    # Tracking: a frame is searched only in a window around the previous person grown by
+    # track_margin_m (at their depth) on each side; the whole image is searched when nobody was
+    # tracked, when the window holds no person or cuts the one found, and every
+    # track_full_search_s (another person or a missed performer is found within that time).
+    # A window is used only once the motion cue compares frames motion_lag_s apart and after a
+    # whole-image search agreed with the frame before it (the person within track_margin_m): a
+    # first pick of clutter is not kept by its window.
+    # None: every frame searches the whole image.
+    track_margin_m: float | None = 0.5
+    track_full_search_s: float = 1.0
