@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
-
-import sys
 
 import numpy as np
 

@@ -32,12 +32,12 @@ sys.path.insert(0, str(ROOT))
 from drivers.serial_source import SerialSource  # noqa: E402
 from live.core.heading import yaw_of  # noqa: E402
 from live.core.report import percentiles  # noqa: E402
+from live.core.skeleton import default_rest_joints  # noqa: E402
 from live.imu.stage import ImuSkeletonStage, build_stages  # noqa: E402
-from live.pipeline.runner import Pipeline  # noqa: E402
+from live.io.session import SessionReader  # noqa: E402
 from live.motion.clips import resample  # noqa: E402
 from live.motion.rig_mapping import load_motion  # noqa: E402
-from live.io.session import SessionReader  # noqa: E402
-from live.core.skeleton import default_rest_joints  # noqa: E402
+from live.pipeline.runner import Pipeline  # noqa: E402
 from sim.imu_device import SimulatedSuit  # noqa: E402
 from sim.imu_model import SimpleMotion  # noqa: E402
 from sim.imu_stream import MotionScene, NoisySkeletonStage, calibration_prelude, write_suit_session  # noqa: E402

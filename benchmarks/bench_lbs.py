@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from live.body.library import load_body  # noqa: E402
-from live.core.rotations import quat_normalize  # noqa: E402
 from live.body.skinning import lbs  # noqa: E402
+from live.core.rotations import quat_normalize  # noqa: E402
 
 
 def main() -> None:

@@ -20,11 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from live.core.depth import intrinsics_matrix  # noqa: E402
 from live.core.frames import AvatarPose, DepthFrame, FrameResult, SkeletonFrame  # noqa: E402
 from live.core.kinematics import forward_kinematics  # noqa: E402
+from live.core.rotations import quat_from_axis_angle  # noqa: E402
+from live.core.skeleton import BONES, default_rest_joints  # noqa: E402
 from live.outputs.raster import look_at, orient_outward, rasterize, shade_lambert, vertex_normals, world_to_camera  # noqa: E402
 from live.outputs.render import RenderOptions, avatar_camera, compose_frame  # noqa: E402
 from live.outputs.vmc import VmcSink  # noqa: E402
-from live.core.rotations import quat_from_axis_angle  # noqa: E402
-from live.core.skeleton import BONES, default_rest_joints  # noqa: E402
 
 
 def ellipsoid_body(joints: np.ndarray, nu: int = 24, nv: int = 22) -> tuple[np.ndarray, np.ndarray]:

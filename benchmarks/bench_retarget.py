@@ -20,13 +20,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
+from test_retarget_analytic import perturbed_body, synth_motion  # noqa: E402
+
 from live.core.kinematics import forward_kinematics  # noqa: E402
 from live.core.metrics import mpjpe  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 from live.retarget.analytic import leg_ratio  # noqa: E402
 from live.retarget.retargeter import AnalyticRetargeter, retarget_motion  # noqa: E402
-from live.core.skeleton import default_rest_joints  # noqa: E402
-from test_retarget_analytic import perturbed_body, synth_motion  # noqa: E402
-from live.core.report import percentiles  # noqa: E402
 
 BVH_DIR = ROOT.parent / "shared" / "data" / "bvh"
 

@@ -30,9 +30,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from live.retarget.retargeter import AnalyticRetargeter  # noqa: E402
-from live.retarget.learned import LearnedRetargeter  # noqa: E402
 from live.core.report import percentiles  # noqa: E402
+from live.retarget.learned import LearnedRetargeter  # noqa: E402
+from live.retarget.retargeter import AnalyticRetargeter  # noqa: E402
 
 BVH = ROOT.parent / "shared" / "data" / "bvh"
 
@@ -56,11 +56,11 @@ def main() -> None:
     ap.add_argument("--target", default=None, help="target body preset (default: the last)")
     args = ap.parse_args()
     from live.body.library import list_presets, load_body
-    from live.evaluation.retarget import _on_body, grounded
+    from live.body.skinning import lbs, pose_transforms, skin
     from live.body.skinning_field import SkinningFieldModel
+    from live.evaluation.retarget import _on_body, grounded
     from live.motion.clips import resample
     from live.motion.rig_mapping import load_motion
-    from live.body.skinning import lbs, pose_transforms, skin
 
     names = sorted(list_presets())
     src = load_body(args.source or names[0])

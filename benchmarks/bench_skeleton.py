@@ -20,12 +20,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from live.core.frames import DepthFrame  # noqa: E402
+from live.core.report import percentiles  # noqa: E402
 from models.skeleton.preprocess import PersonFinder  # noqa: E402
 from models.skeleton.preprocess_config import PreprocessConfig  # noqa: E402
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage  # noqa: E402
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
 from sim.room import Box, Room  # noqa: E402
-from live.core.report import percentiles  # noqa: E402
 
 CLIP = ROOT.parent / "shared" / "data" / "bvh" / "cc_002_05.bvh"
 

@@ -17,15 +17,16 @@ import datetime
 import logging
 import threading
 import time
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from typing import Any, Protocol
 
 import numpy as np
 
 from drivers.oak_settings import OakSettings, apply_stereo_config, oak_settings, stereo_config
 from live.core.errors import DeviceError, DeviceNotFoundError
 from live.core.frames import DepthFrame, MocapPacket
-from live.core.rotations import matrix_to_quat, quat_multiply
 from live.core.protocols import StreamInfo
+from live.core.rotations import matrix_to_quat, quat_multiply
 
 log = logging.getLogger(__name__)
 
@@ -292,8 +293,9 @@ class OakSource:
             info = find_oak_device(device_id, discovery_timeout_s)
             self.device_id = info.getDeviceId()
             # Reconnects look the device up again by MXID: its USB path may change on replug.
-            opener = lambda: _DepthaiSession(self.settings, find_oak_device(self.device_id, discovery_timeout_s),
-                                             self.camera_to_world, self.name)
+            def opener() -> _DepthaiSession:
+                return _DepthaiSession(self.settings, find_oak_device(self.device_id, discovery_timeout_s),
+                                       self.camera_to_world, self.name)
         else:
             self.device_id = device_id or "fake"
         self._opener = opener
@@ -302,7 +304,7 @@ class OakSource:
     def counters(self) -> dict[str, int]:
         return dict(self._counters)
 
-    def open(self) -> "OakSource":
+    def open(self) -> OakSource:
         if self._session is None:
             self._session = self._opener()
             self._streams = self._session.streams()
@@ -317,7 +319,7 @@ class OakSource:
         if session is not None:
             session.close()
 
-    def __enter__(self) -> "OakSource":
+    def __enter__(self) -> OakSource:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

@@ -16,8 +16,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -148,7 +149,7 @@ class RealSenseSource:
     def counters(self) -> dict[str, int]:
         return dict(self._counters)
 
-    def open(self) -> "RealSenseSource":
+    def open(self) -> RealSenseSource:
         if self._metadata is not None:
             return self
         if self._sensor is None:
@@ -216,7 +217,7 @@ class RealSenseBagSource:
     def counters(self) -> dict[str, int]:
         return dict(self._counters)
 
-    def open(self) -> "RealSenseBagSource":
+    def open(self) -> RealSenseBagSource:
         if self._reader is None:
             import open3d as o3d
 

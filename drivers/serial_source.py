@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 import serial
@@ -234,7 +234,7 @@ class SerialSource:
             self._thread.join(timeout)
             self._thread = None
 
-    def __enter__(self) -> "SerialSource":
+    def __enter__(self) -> SerialSource:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -16,8 +16,8 @@ passes them through for firmware that already sends livecap world orientations.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 

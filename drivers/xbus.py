@@ -26,8 +26,9 @@ import math
 import struct
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 

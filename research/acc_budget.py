@@ -21,7 +21,8 @@ centred Gaussian (sigma 0.6 frames): acceleration a smooth estimate cannot follo
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -68,8 +69,14 @@ def budget(clips=None, *, max_frames: int = 300, lag: int = 0, seed: int = 0, al
     {"variants": {name: {"skeleton": {mpjpe, pa_acc_mm_per_frame2}, "analytic": {...}, "learned": {...}}},
     "truth": {"acc_mm_per_frame2", "pa_acc_lost_to_smoothing_mm_per_frame2", "sigma"}, "runs", "lag",
     "clips", "frames"}."""
-    from live.evaluation.retarget import (HELD_OUT_CLIPS, _on_body, estimated_rest, held_out_runs, score,
-                                        source_skeletons)
+    from live.evaluation.retarget import (
+        HELD_OUT_CLIPS,
+        _on_body,
+        estimated_rest,
+        held_out_runs,
+        score,
+        source_skeletons,
+    )
 
     clips = HELD_OUT_CLIPS if clips is None else tuple(clips)
     make = variants(alphas, sigmas)

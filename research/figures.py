@@ -14,10 +14,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from live.core.kinematics import forward_kinematics
-from live.motion.rig_mapping import load_motion
-from live.core.skeleton import BONES, pelvis_height
 from live.core import assets
+from live.core.kinematics import forward_kinematics
+from live.core.skeleton import BONES, pelvis_height
+from live.motion.rig_mapping import load_motion
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
 from sim.room import Box, Room, capsule_body
 

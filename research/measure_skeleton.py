@@ -37,8 +37,13 @@ def temporal_results(regressor: Path, workers: int = 2) -> dict[Path, dict]:
     """{temporal model path: its on-performer validation metrics} for the shipped temporal models
     behind ``regressor``, on the temporal cards' validation sequences drawn by today's finder."""
     from models.skeleton.temporal import TemporalRefiner, temporal_model_path
-    from models.train.train_skeleton_temporal import (build_examples, refine_onnx, regress_sequences, to_world_of,
-                                                       validation_results)
+    from models.train.train_skeleton_temporal import (
+        build_examples,
+        refine_onnx,
+        regress_sequences,
+        to_world_of,
+        validation_results,
+    )
     from sim.skeleton_sequences import SEQUENCE_FPS, generate_sequences
 
     val = generate_sequences("val", 150, seed=1, workers=workers, cache=False)

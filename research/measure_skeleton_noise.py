@@ -33,8 +33,8 @@ def error_statistics(errors: list[np.ndarray]) -> dict[str, np.ndarray]:
 
 def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
     from live.body.library import list_presets, load_body
-    from live.evaluation.retarget import _on_body, depth_skeletons, prepare_motion
     from live.core.skeleton import JOINT_NAMES
+    from live.evaluation.retarget import _on_body, depth_skeletons, prepare_motion
     from sim.skeleton_data import BVH_DIR, VAL_SUBJECTS, list_clips, split_bodies
 
     ap = argparse.ArgumentParser(prog="python -m research.measure_skeleton_noise", description=__doc__.splitlines()[0])

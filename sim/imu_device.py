@@ -143,7 +143,7 @@ class SimulatedSuit:
         if os.path.isdir(self._dir):
             os.rmdir(self._dir)
 
-    def __enter__(self) -> "SimulatedSuit":
+    def __enter__(self) -> SimulatedSuit:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -15,7 +15,11 @@ import numpy as np
 
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import (
-    quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize, quat_rotate,
+    quat_conjugate,
+    quat_from_axis_angle,
+    quat_multiply,
+    quat_normalize,
+    quat_rotate,
     quat_to_axis_angle,
 )
 from live.core.skeleton import NUM_JOINTS, default_rest_joints

@@ -27,12 +27,12 @@ from drivers.text_lines import encode_line
 from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
 from live.core.heading import yaw_of, yaw_quat
 from live.core.kinematics import local_rotations
-from live.imu.calibration import pose_globals
-from live.imu.layout import SuitLayout, load_suit_layout
+from live.core.protocols import StreamInfo
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_slerp
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS
-from live.core.protocols import StreamInfo
 from live.core.timing import frame_offset_ns, seconds_between
+from live.imu.calibration import pose_globals
+from live.imu.layout import SuitLayout, load_suit_layout
 from sim.imu_model import ImuNoise, ImuTrack, SimpleMotion, simulate_imus
 
 PROTOCOLS = ("xbus", "lines")

@@ -13,9 +13,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from live.core.frames import MocapPacket
-from live.io.session import SessionReader
 from live.core.protocols import StreamInfo
 from live.core.timing import seconds_between
+from live.io.session import SessionReader
 
 
 class ReplaySource:

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import UserInputError
 from live.core.skeleton import LEFT_RIGHT_SWAP, NUM_JOINTS
-from live.core import assets
 
 BVH_DIR = assets.bvh_dir()
 CACHE_DIR = assets.cache_dir("skeleton_data")
@@ -132,7 +132,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     rng = np.random.default_rng([seed, SPLITS.index(split)])
     n_jobs = -(-int(n_samples * 1.05 + 1) // frames_per_job)
     jobs = []
-    for k in range(n_jobs):
+    for _ in range(n_jobs):
         clip = clips[int(rng.integers(len(clips)))]
         if split == "train":
             camera = CAMERAS[int(rng.choice(3, p=[0.7, 0.15, 0.15]))]

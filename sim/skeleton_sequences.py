@@ -22,9 +22,22 @@ import numpy as np
 from live.core.errors import UserInputError
 from live.core.skeleton import NUM_JOINTS
 from live.core.timing import frame_offset_ns
-from sim.skeleton_data import (CACHE_DIR, STORED_POINTS, VAL_SUBJECTS, Job, anny_phenotypes, body_by_name,
-                               build_bodies, clip_motion, grounded_joints, plan_jobs, random_view, run_jobs,
-                               save_cache, visible_joints)
+from sim.skeleton_data import (
+    CACHE_DIR,
+    STORED_POINTS,
+    VAL_SUBJECTS,
+    Job,
+    anny_phenotypes,
+    body_by_name,
+    build_bodies,
+    clip_motion,
+    grounded_joints,
+    plan_jobs,
+    random_view,
+    run_jobs,
+    save_cache,
+    visible_joints,
+)
 
 SEQUENCE_FPS = 30.0
 SEQUENCE_FRAMES = 48  # 1.6 s: the performer stays near the centre of the cleared room

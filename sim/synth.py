@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from live.body.library import Body, load_body, save_body
+from live.body.skinning import lbs
 from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth
 from live.core.kinematics import forward_kinematics
+from live.core.protocols import StreamInfo
+from live.core.skeleton import JOINT_INDEX, pelvis_height
+from live.core.timing import frame_offset_ns
 from live.motion.cleaning import trim_bind_pose
 from live.motion.clips import Motion, resample
 from live.motion.rig_mapping import load_motion
-from live.core.skeleton import JOINT_INDEX, pelvis_height
-from live.body.skinning import lbs
-from live.core.protocols import StreamInfo
-from live.core.timing import frame_offset_ns
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
 from sim.room import Room
 

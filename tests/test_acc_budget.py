@@ -9,8 +9,8 @@ import pytest
 
 pytest.importorskip("live.body.library")
 
-from research.acc_budget import budget, format_budget, scaled_error, smoothed  # noqa: E402
 from live.evaluation.retarget import held_out_runs  # noqa: E402
+from research.acc_budget import budget, format_budget, scaled_error, smoothed  # noqa: E402
 
 BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 CLIP = "mb_12_01.bvh"  # held-out subject 12

@@ -64,9 +64,9 @@ def test_mesh_and_cloud_avatars(tmp_path, suffix, cloud, unit):
     """A held-out body written as an OBJ mesh in centimetres, or a PLY point cloud, moved away from
     the origin: the avatar is back in metres on the floor, with a close skeleton and weights that
     pose it close to the true skinning."""
+    from live.body.skinning import lbs
     from live.core.metrics import mpvd
     from live.core.rotations import quat_from_axis_angle
-    from live.body.skinning import lbs
 
     body = body_mod.load_body(_held_out())
     offset = np.array([0.5, 0.3, -1.0])

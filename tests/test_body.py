@@ -7,13 +7,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.body.library import (BODIES_DIR, Body, aliases, list_presets, load_body, parse_anny_spec, preset_phenotypes,
-                               save_body)
+from live.body.library import (
+    BODIES_DIR,
+    Body,
+    aliases,
+    list_presets,
+    load_body,
+    parse_anny_spec,
+    preset_phenotypes,
+    save_body,
+)
+from live.body.skinning import lbs, skinning_transforms
 from live.core.errors import FormatError, UserInputError
 from live.core.kinematics import forward_kinematics, global_rotations
 from live.core.rotations import quat_identity, quat_normalize, quat_to_matrix
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
-from live.body.skinning import lbs, skinning_transforms
 
 J = JOINT_INDEX
 ROOT = Path(__file__).resolve().parent.parent

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from live.io.bvh_kinematics import bvh_forward_kinematics, rest_positions
-from live.io.bvh_reader import UNIT_SCALES, guess_scale, parse_bvh, read_bvh
-from live.io.bvh_writer import clip_from_rotations, format_bvh, write_bvh, write_canonical_bvh
 from live.core.errors import FormatError
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import quat_from_axis_angle, quat_normalize
 from live.core.skeleton import JOINT_NAMES, default_rest_joints
+from live.io.bvh_kinematics import bvh_forward_kinematics, rest_positions
+from live.io.bvh_reader import UNIT_SCALES, guess_scale, parse_bvh, read_bvh
+from live.io.bvh_writer import clip_from_rotations, format_bvh, write_bvh, write_canonical_bvh
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 needs_data = pytest.mark.skipif(not (DATA / "index.csv").exists(), reason="../shared/data/bvh missing")

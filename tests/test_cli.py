@@ -11,8 +11,8 @@ import pytest
 
 from live.app.cli import main
 from live.core.frames import DepthFrame
-from live.io.session import SessionWriter
 from live.core.protocols import StreamInfo
+from live.io.session import SessionWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 K = np.array([[200.0, 0, 32], [0, 200.0, 20], [0, 0, 1]])

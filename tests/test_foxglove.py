@@ -12,15 +12,23 @@ from mcap.stream_reader import StreamReader
 
 from live.core.depth import points_to_world
 from live.core.errors import FormatError, UserInputError
-from live.io.foxglove import (MAP_TO_WORLD, SCHEMAS, avatar_offset_for, decode_point_cloud, export_foxglove,
-                           load_avatar_track, point_cloud_message, Track)
 from live.core.frames import AvatarPose, DepthFrame, FrameResult, GroundTruth, MocapPacket, SkeletonFrame
 from live.core.kinematics import forward_kinematics
-from live.io.results import ResultsWriter, read_skeleton
-from live.core.rotations import quat_from_axis_angle, quat_to_matrix
-from live.io.session import SessionReader, SessionWriter
-from live.core.skeleton import BONES, NUM_JOINTS, default_rest_joints
 from live.core.protocols import StreamInfo
+from live.core.rotations import quat_from_axis_angle, quat_to_matrix
+from live.core.skeleton import BONES, NUM_JOINTS, default_rest_joints
+from live.io.foxglove import (
+    MAP_TO_WORLD,
+    SCHEMAS,
+    Track,
+    avatar_offset_for,
+    decode_point_cloud,
+    export_foxglove,
+    load_avatar_track,
+    point_cloud_message,
+)
+from live.io.results import ResultsWriter, read_skeleton
+from live.io.session import SessionReader, SessionWriter
 
 T = 12
 T0 = 5_000_000_000
@@ -221,7 +229,7 @@ def test_transforms_place_clouds_in_the_world_and_world_upright_in_map(recorded)
     _, msgs = _read(recorded["out"])
     tfs = _of(msgs, "/tf")
     # Every /tf message holds the whole tree (Foxglove's seek keeps only a topic's latest message).
-    for m, d in tfs[1:]:
+    for _m, d in tfs[1:]:
         assert {(t["parent_frame_id"], t["child_frame_id"]) for t in d["transforms"]} == {
             ("map", "world"), ("world", "camera_cam"), ("world", "camera_cloud")}
     map_world = _matrix(tfs[0][1]["transforms"][0])
@@ -246,7 +254,7 @@ def test_skeletons_are_spheres_and_bone_line_lists(recorded):
     _, msgs = _read(recorded["out"])
     joints = recorded["joints"]
     skel = read_skeleton(recorded["results"] / "skeleton.npz")
-    for i, (m, d) in enumerate(_of(msgs, "/ground_truth")):
+    for i, (_m, d) in enumerate(_of(msgs, "/ground_truth")):
         e = d["entities"][0]
         assert e["frame_id"] == "world" and e["id"] == "ground_truth"
         np.testing.assert_allclose(_spheres(d), joints[i], atol=1e-6)
@@ -254,7 +262,7 @@ def test_skeletons_are_spheres_and_bone_line_lists(recorded):
         assert line["type"] == 2  # LINE_LIST
         pts = np.array([[p[a] for a in "xyz"] for p in line["points"]])
         np.testing.assert_allclose(pts, joints[i][np.array(BONES).ravel()], atol=1e-6)
-    for i, (m, d) in enumerate(_of(msgs, "/skeleton")):
+    for i, (_m, d) in enumerate(_of(msgs, "/skeleton")):
         ok = np.isfinite(skel.joints[i]).all(axis=1)
         np.testing.assert_allclose(_spheres(d), skel.joints[i][ok], atol=1e-6)
         alphas = [s["color"]["a"] for s in d["entities"][0]["spheres"]]
@@ -277,7 +285,7 @@ def test_avatar_is_drawn_beside_the_performer(recorded):
     avatar = load_avatar_track(recorded["results"] / "avatar.npz")
     assert np.isfinite(avatar.joints).all()  # frame 4 rebuilt by FK
     np.testing.assert_allclose(avatar.joints, recorded["joints"], atol=1e-5)
-    for i, (m, d) in enumerate(_of(msgs, "/avatar")):
+    for i, (_m, d) in enumerate(_of(msgs, "/avatar")):
         np.testing.assert_allclose(_spheres(d) - offset, recorded["joints"][i], atol=1e-5)
 
 
@@ -298,7 +306,7 @@ def test_options_offset_and_decimation(recorded, tmp_path):
     export = export_foxglove(recorded["session"], out, recorded["results"], avatar_offset=(0, 0, 0), max_points=40)
     assert export.avatar_offset == (0.0, 0.0, 0.0)
     _, msgs = _read(out)
-    for i, (m, d) in enumerate(_of(msgs, "/avatar")):
+    for i, (_m, d) in enumerate(_of(msgs, "/avatar")):
         np.testing.assert_allclose(_spheres(d), recorded["joints"][i], atol=1e-5)
     for _, d in _of(msgs, "/depth/cam") + _of(msgs, "/depth/cloud"):
         assert 0 < len(decode_point_cloud(d)) <= 40

@@ -7,12 +7,12 @@ import pytest
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult, SkeletonFrame
 from live.core.heading import yaw_between, yaw_of
+from live.core.skeleton import JOINT_INDEX, bone_lengths, default_rest_joints
 from live.imu.stage import FusionStage, build_stages
-from live.pipeline.runner import Pipeline
+from live.io.session import SessionReader
 from live.motion.clips import resample
 from live.motion.rig_mapping import load_motion
-from live.io.session import SessionReader
-from live.core.skeleton import JOINT_INDEX, bone_lengths, default_rest_joints
+from live.pipeline.runner import Pipeline
 from sim.imu_stream import MotionScene, NoisySkeletonStage, write_suit_session
 from sim.replay import ReplaySource
 

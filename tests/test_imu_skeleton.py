@@ -9,17 +9,17 @@ import pytest
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.heading import yaw_of, yaw_quat
+from live.core.kinematics import forward_kinematics, global_rotations, joints_from_global_quats, local_rotations
+from live.core.rotations import quat_angle, quat_conjugate, quat_multiply
+from live.core.skeleton import JOINT_INDEX, default_rest_joints, rest_offsets
 from live.imu.calibration import Calibration, CalibrationCollector, calibrate, pose_globals
 from live.imu.layout import load_suit_layout
 from live.imu.stage import ImuSkeletonStage, build_stages
 from live.imu.suit_skeleton import ChainPlan, fill_globals
-from live.core.kinematics import forward_kinematics, global_rotations, joints_from_global_quats, local_rotations
-from live.pipeline.runner import Pipeline
+from live.io.session import SessionReader
 from live.motion.clips import resample
 from live.motion.rig_mapping import load_motion
-from live.core.rotations import quat_angle, quat_conjugate, quat_multiply
-from live.io.session import SessionReader
-from live.core.skeleton import JOINT_INDEX, default_rest_joints, rest_offsets
+from live.pipeline.runner import Pipeline
 from sim.imu_model import random_rotations
 from sim.imu_stream import MotionScene, write_suit_session
 from sim.replay import ReplaySource

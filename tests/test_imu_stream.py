@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from drivers.serial_source import make_parser
-from live.io.export import export_session
 from live.imu.calibration import calibrate
 from live.imu.layout import load_suit_layout
+from live.io.export import export_session
 from live.io.session import SessionReader
 from sim.imu_model import random_smooth_motion
 from sim.imu_stream import ImuStreamer, MotionScene, write_suit_session

@@ -32,8 +32,8 @@ from drivers.oak_settings import PRESETS, OakSettings, apply_stereo_config, oak_
 from live.core.depth import depth_to_points  # noqa: E402
 from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError  # noqa: E402
 from live.core.frames import DepthFrame, MocapPacket  # noqa: E402
-from live.core.rotations import quat_to_matrix  # noqa: E402
 from live.core.protocols import Source, StreamInfo  # noqa: E402
+from live.core.rotations import quat_to_matrix  # noqa: E402
 
 
 # ---------------------------------------------------------------- settings

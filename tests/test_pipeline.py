@@ -8,8 +8,8 @@ import pytest
 
 from live.core.errors import DeviceError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
-from live.pipeline.runner import Pipeline
 from live.core.protocols import StreamInfo
+from live.pipeline.runner import Pipeline
 
 
 class ListSource:

@@ -10,6 +10,8 @@ from live.core.depth import intrinsics_matrix
 from live.core.errors import UserInputError
 from live.core.frames import AvatarPose, DepthFrame, FrameResult, SkeletonFrame
 from live.core.kinematics import forward_kinematics
+from live.core.rotations import quat_from_axis_angle
+from live.core.skeleton import default_rest_joints
 from live.outputs.raster import look_at, orient_outward, project, rasterize, world_to_camera
 from live.outputs.render import (
     RenderOptions,
@@ -20,8 +22,6 @@ from live.outputs.render import (
     frames_to_video,
     splat_points,
 )
-from live.core.rotations import quat_from_axis_angle
-from live.core.skeleton import default_rest_joints
 
 K = intrinsics_matrix(300.0, 300.0, 319.5, 199.5)  # a 640 x 400 image
 SIZE = (640, 400)

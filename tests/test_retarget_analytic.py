@@ -3,19 +3,25 @@
 import numpy as np
 import pytest
 
+from live.core import assets
 from live.core.errors import UserInputError
 from live.core.frames import GroundTruth, SkeletonFrame
 from live.core.kinematics import forward_kinematics
 from live.core.metrics import mpjpe
-from live.retarget.analytic import estimate_rest_joints, leg_ratio, local_rotations_from_joints, retarget
-from live.retarget.contacts import ContactDetector, detect_contacts
-from live.retarget.ik import two_bone_ik
-from live.retarget.retargeter import AnalyticRetargeter, retarget_motion
-from live.retarget.analytic import LIMBS, RestInfo, solve_globals
-from live.retarget.contacts import FEET
 from live.core.rotations import quat_angle, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate
 from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS, default_rest_joints, rest_offsets
-from live.core import assets
+from live.retarget.analytic import (
+    LIMBS,
+    RestInfo,
+    estimate_rest_joints,
+    leg_ratio,
+    local_rotations_from_joints,
+    retarget,
+    solve_globals,
+)
+from live.retarget.contacts import FEET, ContactDetector, detect_contacts
+from live.retarget.ik import two_bone_ik
+from live.retarget.retargeter import AnalyticRetargeter, retarget_motion
 
 BVH_DIR = assets.bvh_dir()
 FPS = 30.0

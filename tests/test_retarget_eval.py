@@ -13,8 +13,8 @@ body_mod = pytest.importorskip("live.body.library")
 pytest.importorskip("live.body.skinning")
 
 from live.evaluation.retarget import METRICS, evaluate_retarget, format_report, grounded  # noqa: E402
-from live.retarget.learned import DEFAULT_MODEL  # noqa: E402
 from live.motion.rig_mapping import load_motion  # noqa: E402
+from live.retarget.learned import DEFAULT_MODEL  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT.parent / "shared" / "data" / "bvh" / "mb_12_01.bvh"  # held-out subject 12

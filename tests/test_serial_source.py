@@ -14,8 +14,8 @@ from drivers.text_lines import encode_line
 from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2
 from live.core.errors import DeviceError, UserInputError
 from live.core.frames import MocapPacket
-from live.core.rotations import quat_normalize
 from live.core.protocols import Source
+from live.core.rotations import quat_normalize
 
 WAIT = 10.0  # generous upper bound for events; tests normally finish far sooner
 

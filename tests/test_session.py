@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from live.io import codec
 from live.core.errors import SessionError, UserInputError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
-from live.io.session import SessionReader, SessionWriter
 from live.core.protocols import StreamInfo
+from live.io import codec
+from live.io.session import SessionReader, SessionWriter
 
 K = np.array([[400.0, 0, 320], [0, 400.0, 200], [0, 0, 1]])
 

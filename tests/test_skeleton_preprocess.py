@@ -7,9 +7,9 @@ import pytest
 
 from live.core.frames import DepthFrame
 from live.core.skeleton import LEFT_RIGHT_SWAP, default_rest_joints
-from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton import point_sample
 from models.skeleton.background import BackgroundModel
+from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.point_sample import R2_STEP, R2_VISITS, fine_sample, r2_grid_order
 from models.skeleton.preprocess import PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from live.core.errors import ModelError, UserInputError
 from live.body.skinning_field import DEFAULT_MODEL, SkinningFieldModel
+from live.core.errors import ModelError, UserInputError
 from live.core.skeleton import default_rest_joints
 
 
@@ -57,9 +57,9 @@ def test_committed_field_on_held_out_body():
     """On a held-out preset: mostly the right dominant bone, and LBS with the predicted weights
     close to LBS with the true ones on a bent pose."""
     from live.body.library import list_presets, load_body
+    from live.body.skinning import lbs
     from live.core.metrics import mpvd
     from live.core.rotations import quat_from_axis_angle
-    from live.body.skinning import lbs
     from sim.skeleton_data import split_bodies
 
     body = load_body(split_bodies(list_presets(), "val")[0])

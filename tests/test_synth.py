@@ -4,11 +4,11 @@ same bytes, and the session replays like a recorded one."""
 import numpy as np
 
 from live.body.library import load_body
+from live.core.skeleton import JOINT_INDEX as J
+from live.io.session import SessionReader
 from live.motion.clips import resample
 from live.motion.rig_mapping import load_motion
-from live.io.session import SessionReader
-from live.core.skeleton import JOINT_INDEX as J
-from sim.synth import CameraPlacement, SynthOptions, SyntheticScene, synthesize
+from sim.synth import CameraPlacement, SyntheticScene, SynthOptions, synthesize
 
 FLEXIONS = [("left_hip", "left_knee", "left_ankle"), ("right_hip", "right_knee", "right_ankle"),
             ("left_shoulder", "left_elbow", "left_wrist"), ("right_shoulder", "right_elbow", "right_wrist")]

@@ -17,9 +17,9 @@ import pytest
 from live.core.errors import UserInputError
 from live.core.frames import AvatarPose, DepthFrame, FrameResult, SkeletonFrame
 from live.core.kinematics import forward_kinematics
-from live.outputs.render import bone_mesh
 from live.core.rotations import quat_from_axis_angle
 from live.core.skeleton import default_rest_joints
+from live.outputs.render import bone_mesh
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
 

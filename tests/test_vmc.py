@@ -14,6 +14,8 @@ from pythonosc.osc_server import BlockingOSCUDPServer
 from live.core.errors import UserInputError
 from live.core.frames import AvatarPose, FrameResult, SkeletonFrame
 from live.core.kinematics import forward_kinematics
+from live.core.rotations import quat_from_axis_angle, quat_normalize, quat_to_matrix
+from live.core.skeleton import JOINT_INDEX, PARENTS, default_rest_joints
 from live.outputs.unity import (
     JOINT_TO_UNITY_BONE,
     UNITY_BONES,
@@ -23,8 +25,6 @@ from live.outputs.unity import (
     quat_to_unity,
 )
 from live.outputs.vmc import VmcSink, encode_bundle, pose_from_vmc, vmc_messages
-from live.core.rotations import quat_from_axis_angle, quat_normalize, quat_to_matrix
-from live.core.skeleton import JOINT_INDEX, PARENTS, default_rest_joints
 
 M = np.diag([-1.0, 1.0, 1.0])
 

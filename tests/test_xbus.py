@@ -11,7 +11,12 @@ import pytest
 
 from drivers import xbus
 from drivers.xbus import (
-    BID_MASTER, MID_MTDATA2, XbusConfigurator, XbusParser, decode_mtdata2, encode_message,
+    BID_MASTER,
+    MID_MTDATA2,
+    XbusConfigurator,
+    XbusParser,
+    decode_mtdata2,
+    encode_message,
     encode_mtdata2,
 )
 from live.core.errors import DeviceError, FormatError

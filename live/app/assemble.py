@@ -5,10 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from live.core import assets
 from live.core.errors import UserInputError
 from live.io.results import ResultsWriter
 from live.pipeline.stages import CloudStage, RetargetStage
-from live.core import assets
 
 DEFAULT_SKELETON_MODEL = assets.weight("skeleton.onnx")
 

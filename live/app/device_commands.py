@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import sys
 
-from live.core.errors import UserInputError
 from live.app.sources import open_source
+from live.core.errors import UserInputError
 
 
 def cmd_devices(args) -> int:
@@ -18,9 +18,9 @@ def cmd_devices(args) -> int:
 def cmd_calibrate(args) -> int:
     import threading
 
+    from live.core.skeleton import default_rest_joints
     from live.imu.calibration import CalibrationCollector
     from live.imu.layout import load_suit_layout
-    from live.core.skeleton import default_rest_joints
 
     source = open_source(args.source)
     collector = CalibrationCollector(load_suit_layout(args.layout), args.pose,

@@ -9,11 +9,11 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
+from live.core import assets
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
-from live.pipeline.runner import Pipeline
 from live.io.session import SessionWriter
-from live.core import assets
+from live.pipeline.runner import Pipeline
 
 DEMO_SESSION = assets.demo_session()
 

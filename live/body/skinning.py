@@ -16,7 +16,6 @@ from live.core.kinematics import forward_kinematics, forward_kinematics_frame
 from live.core.rotations import quat_to_matrix
 from live.core.skeleton import PARENTS, rest_offsets
 
-
 # OpenBLAS runs a GEMM on one thread when m x n x k <= 65536 x GEMM_MULTITHREAD_THRESHOLD (4).
 _BLAS_SINGLE_THREAD_MNK = 4 * 65536
 

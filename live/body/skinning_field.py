@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.skeleton import NUM_JOINTS
-from live.core import assets
 
 DEFAULT_MODEL = assets.weight("skinning_field.onnx")
 

@@ -9,8 +9,9 @@ synthetic clips) all implement Source, so live use and tests share one path; the
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from live.core.frames import FrameResult
 

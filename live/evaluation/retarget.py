@@ -20,11 +20,11 @@ from typing import Any
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.skeleton import pelvis_height
 from live.core.timing import frame_offset_ns
-from live.core import assets
 
 #: The reference method's figures (SMPL test set, naked targets), for the report.
 REFERENCE = {"mpjpe": 0.158, "pa_mpjpe": 0.043, "acc_mm_per_frame2": 21.0, "pa_acc_mm_per_frame2": 8.0,
@@ -186,8 +186,8 @@ def score(motion, target_body, src_joints: np.ndarray, src_rest: np.ndarray, ret
           model: str | Path | None = None, feet: bool = True) -> dict[str, Any]:
     """Retarget source joints (T x 22 x 3) online onto the target body, skin, compare with the
     ground truth of the motion on the target: the metrics dict (see ``evaluate_retarget``)."""
-    from live.core.metrics import acceleration_error, knn_edges, mpjpe, mpvd, pa_acceleration_error, pa_mpjpe, pa_mpvd
     from live.body.skinning import lbs
+    from live.core.metrics import acceleration_error, knn_edges, mpjpe, mpvd, pa_acceleration_error, pa_mpjpe, pa_mpvd
 
     tgt = target_body
     gt_root, gt_joints = _on_body(motion, tgt.rest_joints)

@@ -27,12 +27,17 @@ import numpy as np
 
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
-from live.imu.layout import SuitLayout, load_suit_layout
 from live.core.heading import yaw_of, yaw_quat
 from live.core.rotations import (
-    quat_angle, quat_between, quat_conjugate, quat_identity, quat_multiply, quat_normalize,
+    quat_angle,
+    quat_between,
+    quat_conjugate,
+    quat_identity,
+    quat_multiply,
+    quat_normalize,
 )
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, default_rest_joints
+from live.imu.layout import SuitLayout, load_suit_layout
 
 POSES = ("tpose", "npose")
 

@@ -28,7 +28,6 @@ from live.imu.calibration import Calibration
 from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals
 from live.retarget.analytic import estimate_rest_joints
 
-
 #: Bones whose rest direction is kept from the template and only the length is learnt: the
 #: limbs, where a heading error of the parent's sensor would otherwise be baked into the offset
 #: (and then never seen again by the heading filter).

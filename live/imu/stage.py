@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
+from live.core.rotations import quat_slerp
+from live.core.skeleton import default_rest_joints
 from live.imu.calibration import Calibration, CalibrationCollector
 from live.imu.fusion import Fuser
 from live.imu.layout import SuitLayout, load_suit_layout
 from live.imu.suit_skeleton import SuitPose, SuitSolver
-from live.core.rotations import quat_slerp
-from live.core.skeleton import default_rest_joints
 
 MODES = ("depth", "imu", "fused")
 

@@ -15,7 +15,6 @@ from live.core.errors import FormatError
 from live.io.bvh_clip import BvhClip, BvhSkeleton
 from live.io.bvh_kinematics import skeleton_span
 
-
 _CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _CHANNEL_LOOKUP = {c.lower(): c for c in _CHANNEL_NAMES}
 

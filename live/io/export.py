@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from live.io.session import SessionReader
 from live.core.protocols import StreamInfo
+from live.io.session import SessionReader
 
 
 def _stack(values: list, dtype, shape: tuple[int, ...]) -> np.ndarray:

@@ -36,9 +36,9 @@ from live import __version__
 from live.core.errors import FormatError, UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import matrix_to_quat
+from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
 from live.io.results import read_avatar, read_skeleton
 from live.io.session import SessionReader
-from live.core.skeleton import BONES, JOINT_INDEX, NUM_JOINTS
 
 # ---------------------------------------------------------------------------------------------
 # Schemas (JSON Schema), built from compact definitions so every "required" list is complete.

@@ -24,10 +24,10 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from live import __version__
-from live.io import codec
 from live.core.errors import SessionError, UserInputError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
 from live.core.protocols import StreamInfo
+from live.io import codec
 
 PROFILE = "livecap"
 SESSION_METADATA = "livecap.session"
@@ -125,7 +125,7 @@ class SessionWriter:
         finally:
             self._file.close()
 
-    def __enter__(self) -> "SessionWriter":
+    def __enter__(self) -> SessionWriter:
         return self
 
     def __exit__(self, *exc) -> None:

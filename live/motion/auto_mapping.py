@@ -14,7 +14,6 @@ from live.io.bvh_clip import BvhSkeleton
 from live.io.bvh_kinematics import rest_positions, skeleton_span
 from live.motion.rig_tables import RigTable, Spec
 
-
 _PREFIX = re.compile(r"^(cc_base_|rl_|def[-_]|org[-_]|bip0*1[ _]?|b_|j_bip_[clr]_|mixamorig\d*_?)",
                      re.IGNORECASE)
 _SIDE_PATTERNS = (

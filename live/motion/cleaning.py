@@ -9,7 +9,6 @@ import numpy as np
 
 from live.motion.clips import Motion
 
-
 #: Mean joint speed (m/s) between two frames that no performed motion reaches: fast martial-arts
 #: strikes in ../shared/data/bvh peak at 9 m/s at 120 fps, a bind-pose frame leaves at 15-160.
 BIND_POSE_JUMP_MPS = 12.0

@@ -35,7 +35,6 @@ from live.motion.auto_mapping import auto_mapping
 from live.motion.clips import Motion
 from live.motion.rig_tables import TABLES, RigTable, detect_rig, spec_names
 
-
 _DEFAULT_REST = default_rest_joints().astype(np.float64)
 _DEGENERATE = np.deg2rad(150.0)  # a bone this far from its T-pose direction has no clear twist
 

@@ -17,7 +17,6 @@ import numpy as np
 from live.core.skeleton import JOINT_NAMES
 from live.io.bvh_clip import BvhSkeleton
 
-
 Spec = str | tuple[str, str, float]
 
 

@@ -157,7 +157,7 @@ def _bucket_fragments(sel, sw, sh, x, y, zt, area, x0, x1, y0, y1, w):
     # Edge function of the edge opposite vertex i, normalised by the signed area, is linear in
     # the pixel: l_i = c_i + a_i * dx + b_i * dy, measured from the box corner (bx0, by0).
     ls = []
-    for i, j, k in ((0, 1, 2), (1, 2, 0)):
+    for _i, j, k in ((0, 1, 2), (1, 2, 0)):
         a = (ys[:, j] - ys[:, k]) * inv_a
         b = (xs[:, k] - xs[:, j]) * inv_a
         c = (xs[:, j] * ys[:, k] - xs[:, k] * ys[:, j]) * inv_a + a * bx0 + b * by0

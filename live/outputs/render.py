@@ -14,8 +14,8 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterable
-from functools import lru_cache
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -23,6 +23,7 @@ import numpy as np
 
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
+from live.core.skeleton import BONES, JOINT_NAMES
 from live.outputs.raster import (
     look_at,
     orient_outward,
@@ -32,7 +33,6 @@ from live.outputs.raster import (
     vertex_normals,
     world_to_camera,
 )
-from live.core.skeleton import BONES, JOINT_NAMES
 
 log = logging.getLogger(__name__)
 

@@ -33,8 +33,8 @@ import numpy as np
 from live.core.depth import points_to_world
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
-from live.outputs.raster import vertex_normals
 from live.core.skeleton import BONES, JOINT_NAMES
+from live.outputs.raster import vertex_normals
 
 log = logging.getLogger(__name__)
 

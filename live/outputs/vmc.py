@@ -32,6 +32,8 @@ from pythonosc.osc_message_builder import OscMessageBuilder
 
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
+from live.core.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
+from live.core.skeleton import NUM_JOINTS, default_rest_joints, rest_offsets
 from live.outputs.unity import (
     UNITY_BONE_INDEX,
     UNITY_BONES,
@@ -40,8 +42,6 @@ from live.outputs.unity import (
     quat_from_unity,
     quat_to_unity,
 )
-from live.core.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
-from live.core.skeleton import NUM_JOINTS, default_rest_joints, rest_offsets
 
 log = logging.getLogger(__name__)
 

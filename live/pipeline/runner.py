@@ -22,9 +22,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from live.core.frames import DepthFrame, FrameResult, GroundTruth, MocapPacket
+from live.core.protocols import Sink, Source, Stage
 from live.core.ring import ObjectRing, RingClosedError, RingFullError
 from live.io.session import SessionWriter
-from live.core.protocols import Sink, Source, Stage
 from live.pipeline.stats import LatencyRecorder, StageStats
 
 log = logging.getLogger("livecap.pipeline")

@@ -32,15 +32,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.core.errors import UserInputError
-from live.core.vec3 import Mat
 from live.core import vec3 as v3
-from live.retarget.ik import cross, dot, normalize
+from live.core.errors import UserInputError
 from live.core.kinematics import local_matrices
 from live.core.rotations import matrix_to_quat
 from live.core.skeleton import (
-    BONES, CHILDREN, JOINT_INDEX, LEAVES, NUM_JOINTS, PARENTS, joints_from_offsets, pelvis_height, rest_offsets,
+    BONES,
+    CHILDREN,
+    JOINT_INDEX,
+    LEAVES,
+    NUM_JOINTS,
+    PARENTS,
+    joints_from_offsets,
+    pelvis_height,
+    rest_offsets,
 )
+from live.core.vec3 import Mat
+from live.retarget.ik import cross, dot, normalize
 
 _J = JOINT_INDEX
 #: Limb chains whose middle joint is a hinge: (root, middle, end, rest hinge axis).

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from live.core.skeleton import CHILDREN, PARENTS
 from live.retarget.analytic import LIMBS
 from live.retarget.contacts import FEET, ContactDetector, ContactThresholds, FootLock, floor_lift
 from live.retarget.ik import apply_limb_ik
-from live.core.skeleton import CHILDREN, PARENTS
 
 _LEGS = np.array([limb[:3] for limb in LIMBS[:2]], dtype=np.int64)
 _LEG_HINGES = np.array([limb[3] for limb in LIMBS[:2]], dtype=np.float64)

@@ -14,15 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.core.kinematics import forward_kinematics, joints_from_global_matrices
-from live.retarget.feet import FootPlanter
-from live.retarget.interface import step_frame
 from live.core.rotations import matrix_to_quat, sixd_to_matrix
 from live.core.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 from live.core.timing import FrameClock, frame_interval_s
-from live.core import assets
+from live.retarget.feet import FootPlanter
+from live.retarget.interface import step_frame
 
 DEFAULT_MODEL = assets.weight("retarget.onnx")
 TRAIN_FPS = 30.0

@@ -13,14 +13,14 @@ import numpy as np
 from live.core.errors import UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
 from live.core.kinematics import forward_kinematics_matrices, joints_from_global_matrices
+from live.core.rotations import matrix_to_quat, quat_to_matrix
+from live.core.skeleton import CHILDREN, NUM_JOINTS, PARENTS
+from live.core.timing import FrameClock, frame_interval_s
 from live.retarget.analytic import LIMBS, RestInfo, leg_ratio, solve_globals
 from live.retarget.contacts import ContactThresholds
 from live.retarget.feet import SOFT_IK, FootPlanter
 from live.retarget.ik import apply_limb_ik
 from live.retarget.interface import step_frame
-from live.core.rotations import matrix_to_quat, quat_to_matrix
-from live.core.skeleton import CHILDREN, NUM_JOINTS, PARENTS
-from live.core.timing import FrameClock, frame_interval_s
 
 _ARMS = np.array([limb[:3] for limb in LIMBS[2:]], dtype=np.int64)
 _ARM_HINGES = np.array([limb[3] for limb in LIMBS[2:]], dtype=np.float64)

@@ -12,7 +12,6 @@ from live.core.frames import DepthFrame
 from models.skeleton.background import BackgroundModel
 from models.skeleton.preprocess_config import PreprocessConfig
 
-
 #: Step of the R2 sequence (Roberts 2018: the additive recurrence on the plastic number), whose
 #: every prefix covers the unit square evenly (low discrepancy).
 _PLASTIC = 1.3247179572447460

@@ -17,13 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import DepthFrame, FrameResult, SkeletonFrame
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
 from models.skeleton.temporal import TemporalRefiner, temporal_model_path
-from live.core import assets
 
 log = logging.getLogger(__name__)
 

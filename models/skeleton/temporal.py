@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core import assets
 from live.core.errors import ModelError
 from live.core.skeleton import NUM_JOINTS
-from live.core import assets
 
 WEIGHTS_DIR = assets.weights_dir()
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"

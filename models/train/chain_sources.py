@@ -61,9 +61,9 @@ def run_chain(run: dict, data: dict, template: np.ndarray) -> dict:
     """The skeleton stage's output for one planned run (see the module docstring)."""
     from live.body.library import load_body
     from live.core.kinematics import forward_kinematics
-    from live.retarget.analytic import estimate_rest_joints
     from live.evaluation.retarget import depth_skeletons
     from live.motion.clips import Motion
+    from live.retarget.analytic import estimate_rest_joints
     from sim.synth import CameraPlacement
 
     c = run["clip"]

@@ -61,8 +61,7 @@ def quantize_matmuls(src: Path, dst: Path, quantize: Callable[[str], bool]) -> d
     """Write ``dst``: ``src`` with the weights of the Gemm/MatMul layers whose node name
     ``quantize`` selects in 8-bit blocks (MatMulNBits); returns what the card records."""
     import onnx
-    from onnxruntime.quantization.matmul_nbits_quantizer import (DefaultWeightOnlyQuantConfig,
-                                                                 MatMulNBitsQuantizer)
+    from onnxruntime.quantization.matmul_nbits_quantizer import DefaultWeightOnlyQuantConfig, MatMulNBitsQuantizer
 
     logging.getLogger("onnxruntime.quantization").setLevel(logging.WARNING)  # one INFO line per node
     model = onnx.load(str(src))

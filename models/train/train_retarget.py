@@ -307,8 +307,8 @@ def validate(onnx_path: Path, data: dict, clip_ids: np.ndarray, rests: np.ndarra
     analytic retargeter: MPJPE / PA-MPJPE / Acc (m, mm/frame^2) averaged over (clip, pair)."""
     from live.core.kinematics import forward_kinematics
     from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe
-    from live.retarget.retargeter import retarget_motion
     from live.retarget.learned import LearnedRetargeter
+    from live.retarget.retargeter import retarget_motion
 
     res = {"learned": [], "analytic": []}
     pairs = [(i, (i + 1) % len(rests)) for i in range(len(rests))]

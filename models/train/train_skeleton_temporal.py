@@ -155,8 +155,9 @@ def mirror_features(x: np.ndarray, window: int) -> np.ndarray:
 
 def train(ex: dict, window: int, epochs: int, lr: float, acc_weight: float, seed: int, net: dict,
           progress: bool) -> tuple[TemporalRefineNet, dict]:
-    from live.core.skeleton import LEFT_RIGHT_SWAP
     from tqdm import tqdm
+
+    from live.core.skeleton import LEFT_RIGHT_SWAP
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)

@@ -89,9 +89,9 @@ def train(field: SkinningField, bodies: list, poses: np.ndarray, minutes: float,
 
 def validate(onnx_path: Path, bodies: list, poses: np.ndarray, seed: int) -> dict:
     """Held-out bodies: weight errors and MPVD of LBS with predicted vs true weights (metres)."""
-    from live.core.metrics import mpvd
-    from live.body.skinning_field import SkinningFieldModel
     from live.body.skinning import lbs
+    from live.body.skinning_field import SkinningFieldModel
+    from live.core.metrics import mpvd
 
     model = SkinningFieldModel(onnx_path)
     rng = np.random.default_rng(seed)
