@@ -1,4 +1,4 @@
-"""What the CLI commands do, as plain functions (the CLI only parses arguments)."""
+"""Running a pipeline for a CLI command: stop on signals, a progress bar, stats.json, speed options."""
 
 from __future__ import annotations
 

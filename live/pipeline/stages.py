@@ -1,7 +1,8 @@
-"""Pipeline stages and how the CLI assembles them.
+"""The cloud stage and the retarget stage.
 
-The cloud stage turns each depth frame into a world-frame point cloud; the skeleton stage
-(models.skeleton) and the retarget stage (live.retarget) join when their models are present.
+The cloud stage turns each depth frame into a world-frame point cloud; the skeleton stage lives
+in models.skeleton.runtime; the retarget stage drives any retargeter of live.retarget through its
+interface. live.app.assemble puts the stages together.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The online analytic retargeting stage: source skeletons or rotations -> avatar poses.
+"""The online analytic retargeter: source skeletons or rotations -> avatar poses.
 
 Per frame: rotations from the source joints (live/retarget/analytic.py, limb twists carried from
 frame to frame), copied onto the target body with the root scaled by the leg-length ratio, then
