@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-CACHE = ROOT / ".cache"
+from live.core import assets
+
+CACHE = assets.cache_dir()
 FPS = 30.0
 
 

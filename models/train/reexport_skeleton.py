@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from live.core import assets
 from models.train.skeleton_nets import DeployedVotingPointNet, VotingPointNet, export_deployed, export_onnx
 
-WEIGHTS = Path(__file__).resolve().parents[2] / "models" / "weights"
+WEIGHTS = assets.weights_dir()
 
 
 def module_name(matmul_output: str) -> str:

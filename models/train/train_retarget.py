@@ -36,13 +36,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from live.core import assets
 from live.core.heading import yaw_quat
 from live.core.rotations import quat_multiply
 from models.train.retarget_nets import RetargetNet, count_parameters, export_onnx, fk, leg_length
 
-ROOT = Path(__file__).resolve().parents[2]
-WEIGHTS = ROOT / "models" / "weights"
-CACHE = ROOT / ".cache"
+WEIGHTS = assets.weights_dir()
+CACHE = assets.cache_dir()
 FPS = 30.0
 LAMBDA_ROT = 0.01
 BATCH = 48

@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from live.core import assets
 from models.train.skeleton_nets import build, count_parameters, export_onnx
 
-ROOT = Path(__file__).resolve().parents[2]
-WEIGHTS = ROOT / "models" / "weights"
+WEIGHTS = assets.weights_dir()
 UPPER_JOINTS = (0, 3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21)
 
 
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(args.threads)
     n_train = args.n_train or (240 if args.quick else 20000)
     n_val = args.n_val or (60 if args.quick else 1200)
-    out_dir = args.out or (ROOT / ".cache" / "skeleton_quick" if args.quick else WEIGHTS)
+    out_dir = args.out or (assets.cache_dir("skeleton_quick") if args.quick else WEIGHTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()

@@ -28,8 +28,9 @@ import numpy as np
 import torch
 from torch import nn
 
-ROOT = Path(__file__).resolve().parents[2]
-WEIGHTS = ROOT / "models" / "weights"
+from live.core import assets
+
+WEIGHTS = assets.weights_dir()
 FLIP = np.array([-1.0, 1.0, 1.0])
 ON_PERFORMER_M = 0.6  # as sim.skeleton_data.run_job: a person this far off the pelvis is clutter
 
@@ -361,7 +362,7 @@ def main(argv: list[str] | None = None) -> dict:
     n_val = args.n_val or (3 if args.quick else 150)
     epochs = args.epochs or (1 if args.quick else 24)
     n_anny = args.anny_train if args.anny_train is not None else (0 if args.quick else 3000)
-    out_dir = args.out or (ROOT / ".cache" / "skeleton_temporal_quick" if args.quick else WEIGHTS)
+    out_dir = args.out or (assets.cache_dir("skeleton_temporal_quick") if args.quick else WEIGHTS)
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()
