@@ -1,5 +1,5 @@
 """Where the whole chain's PA-Acc comes from, and what the skeleton stage would have to give for
-a goal (issue 5: PA-Acc <= 4 mm/frame^2 from depth).
+a goal (such as PA-Acc <= 4 mm/frame^2 from depth).
 
     python -m research.acc_budget [--all-clips] [--lag 2] [--frames 300] [--json FILE]
 
@@ -12,7 +12,7 @@ retargeters as they are and after two kinds of change:
   behind a skeleton stage alpha times as wrong. alpha 0 is the exact skeleton with the T-pose
   still estimated from it, as live.
 - *offline smoothing*: the estimate smoothed by a centred Gaussian of sigma frames, a look-ahead
-  no live stage has: what more smoothing of today's estimates can give.
+  no live stage has: what more smoothing of the shipped stage's estimates can give.
 
 Two rows describe the ground truth itself: the mean |acceleration| of its joints (the PA-Acc of
 an estimate that never accelerates is of that size), and the PA-Acc of the truth after a light

@@ -1,11 +1,12 @@
-"""Re-measure a skeleton model's per-frame validation metrics with today's person finder.
+"""Re-measure a skeleton model's per-frame validation metrics with the shipped person finder.
 
     python -m research.measure_skeleton [--model models/weights/skeleton.onnx] [--val 1200] [--temporal] [--card]
 
 Why: a card's metrics were measured on the samples the person finder drew when the model was
-trained; a change of the finder (such as its evenly spread fine sample, docs/skeleton.md) changes
-what the same weights see. This draws the card's validation sets again (the same frames:
-train_skeleton's seeds 1 and 2, never cached) with today's finder and scores the model on them.
+trained; a finder that samples differently (such as its evenly spread fine sample,
+docs/skeleton.md) changes what the same weights see. This draws the card's validation sets again
+(the same frames: train_skeleton's seeds 1 and 2, never cached) with the shipped finder
+(models/skeleton/preprocess.py) and scores the model on them.
 ``--temporal`` also scores the shipped temporal models (online and lag 2) behind it on their
 150 held-out validation sequences, sampled again the same way. ``--card`` records the results in
 the cards as "metrics_current_finder", beside the training-time "metrics", with this command.
@@ -26,7 +27,7 @@ KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "pck_10cm", "upper_body_mpjpe_mm")
 
 def validation_sets(n_val: int, workers: int = 2) -> dict[str, dict]:
     """The card's validation sets as train_skeleton draws them (seeds 1 and 2 beside training's 0),
-    sampled by today's finder (never read from the cache)."""
+    sampled by the shipped finder (never read from the cache)."""
     from sim.skeleton_data import generate
 
     return {"val": generate("val", n_val, seed=1, workers=workers, cache=False),
@@ -35,7 +36,7 @@ def validation_sets(n_val: int, workers: int = 2) -> dict[str, dict]:
 
 def temporal_results(regressor: Path, workers: int = 2) -> dict[Path, dict]:
     """{temporal model path: its on-performer validation metrics} for the shipped temporal models
-    behind ``regressor``, on the temporal cards' validation sequences drawn by today's finder."""
+    behind ``regressor``, on the temporal cards' validation sequences drawn by the shipped finder."""
     from models.skeleton.temporal import TemporalRefiner, temporal_model_path
     from models.train.train_skeleton_temporal import (
         build_examples,
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> dict:
         before = card.get("metrics", {}).get(split, {})
         print(f"{split:11s} " + "  ".join(f"{k} {before.get(k, '-')} -> {m[k]}" for k in KEYS), flush=True)
     command = "python -m research.measure_skeleton " + shlex.join(argv if argv is not None else sys.argv[1:])
-    note = ("the card's validation {} sampled again by today's person finder (models/skeleton/preprocess.py); "
+    note = ("the card's validation {} sampled again by the shipped person finder (models/skeleton/preprocess.py); "
             "'metrics' are those of training time")
     if args.card:
         card["metrics_current_finder"] = {"command": command, "note": note.format("frames"),

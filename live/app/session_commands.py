@@ -6,6 +6,7 @@ import json
 import sys
 
 from live.core.errors import UserInputError
+from live.core.timing import seconds_between
 
 
 def cmd_export(args) -> int:
@@ -46,7 +47,7 @@ def cmd_info(args) -> int:
     doc = {
         "path": str(args.session), "livecap_version": info.version, "start_wall_time_ns": info.start_wall_time_ns,
         "streams": [{"name": s.name, "kind": s.kind, "messages": counts.get(s.name, 0),
-                     "duration_s": round((last.get(s.name, 0) - first.get(s.name, 0)) / 1e9, 3), "meta": s.meta}
+                     "duration_s": round(seconds_between(first.get(s.name, 0), last.get(s.name, 0)), 3), "meta": s.meta}
                     for s in info.streams],
         "extra": info.extra, "attachments": sorted(reader.attachments), "damage": reader.error,
     }

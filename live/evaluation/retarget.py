@@ -1,4 +1,4 @@
-"""Retargeting evaluation with the reference metrics (issue 5): ``evaluate_retarget``.
+"""Retargeting evaluation with the reference metrics: ``evaluate_retarget``.
 
 Ground truth: the motion's local rotations on the target's T-pose, the root scaled by the
 leg-length ratio (CONVENTIONS.md), skinned with the target's true weights. Prediction: the motion

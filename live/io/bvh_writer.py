@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from live.core.rotations import matrix_to_euler, quat_to_matrix
-from live.core.skeleton import JOINT_NAMES, PARENTS, rest_offsets
+from live.core.skeleton import JOINT_NAMES, LEAVES, PARENTS, rest_offsets
+from live.core.timing import frame_interval_s
 from live.io.bvh_clip import BvhClip, BvhSkeleton
 
 
@@ -104,9 +105,8 @@ def canonical_skeleton(rest_joints: np.ndarray) -> BvhSkeleton:
     with end sites that continue the leaf bones (head, wrists, feet)."""
     rest_joints = np.asarray(rest_joints, dtype=np.float64)
     offsets = rest_offsets(rest_joints)
-    leaves = [j for j in range(len(JOINT_NAMES)) if j not in set(PARENTS.tolist())]
     end_offsets = []
-    for j in leaves:
+    for j in LEAVES:
         # Extend the leaf's incoming bone by half its length: a visible bone in viewers.
         end_offsets.append(0.5 * offsets[j])
     return BvhSkeleton(
@@ -114,7 +114,7 @@ def canonical_skeleton(rest_joints: np.ndarray) -> BvhSkeleton:
         parents=PARENTS.astype(np.int64),
         offsets=offsets,
         channels=tuple(_ROOT_CHANNELS if p < 0 else _JOINT_CHANNELS for p in PARENTS),
-        end_parents=np.array(leaves, dtype=np.int64),
+        end_parents=np.array(LEAVES, dtype=np.int64),
         end_offsets=np.array(end_offsets).reshape(-1, 3),
     )
 
@@ -129,5 +129,5 @@ def write_canonical_bvh(path: str | Path, rotations: np.ndarray, root: np.ndarra
         raise ValueError(f"rotations must be (T, 22, 4), got {rotations.shape}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    clip = clip_from_rotations(canonical_skeleton(rest_joints), 1.0 / fps, rotations, root)
+    clip = clip_from_rotations(canonical_skeleton(rest_joints), frame_interval_s(fps), rotations, root)
     write_bvh(path, clip, precision=precision)

@@ -9,7 +9,7 @@ import re
 import numpy as np
 
 from live.core.errors import FormatError
-from live.core.skeleton import JOINT_NAMES
+from live.core.skeleton import JOINT_NAMES, ancestors_of, joint_depths
 from live.io.bvh_clip import BvhSkeleton
 from live.io.bvh_kinematics import rest_positions, skeleton_span
 from live.motion.rig_tables import RigTable, Spec
@@ -85,12 +85,13 @@ def auto_mapping(skeleton: BvhSkeleton) -> RigTable:
     parents = skeleton.parents
     rest = rest_positions(skeleton)
     tol = 1e-3 * skeleton_span(skeleton)  # "same place": well below any real bone
+    depth = joint_depths(parents)
     classes = [joint_class(n) for n in names]
     missing: list[str] = []
 
     def find(side: str | None, cls: str) -> int | None:
         hits = [j for j, (s, c) in enumerate(classes) if c == cls and s == side]
-        return min(hits, key=lambda j: _depth(parents, j)) if hits else None
+        return min(hits, key=lambda j: depth[j]) if hits else None
 
     def up(j: int) -> int | None:
         """Nearest ancestor at a distance from j, then up through a run of the same class."""
@@ -147,7 +148,7 @@ def auto_mapping(skeleton: BvhSkeleton) -> RigTable:
     if not heads:
         raise FormatError("cannot place canonical joints neck, head on this rig (no joint named "
                           "like a head above the arms)")
-    head = min(heads, key=lambda j: _depth(parents, j))
+    head = min(heads, key=lambda j: depth[j])
     path = _path(parents, spine3, head)[1:-1]
     away = [j for j in path if np.linalg.norm(rest[j] - rest[spine3]) > tol]
     table["neck"] = names[away[0]] if away else (names[parents[head]], names[head], 0.5)
@@ -180,19 +181,9 @@ def _foot_point(skeleton: BvhSkeleton, ankle: int, classes: list, tol: float) ->
     raise FormatError(f"cannot place the foot (toe) below {skeleton.names[ankle]}")
 
 
-def _depth(parents: np.ndarray, j: int) -> int:
-    d = 0
-    while parents[j] >= 0:
-        j, d = parents[j], d + 1
-    return d
-
-
 def _ancestors(parents: np.ndarray, j: int) -> list[int]:
-    out = [j]
-    while parents[j] >= 0:
-        j = int(parents[j])
-        out.append(j)
-    return out
+    """j and the joints above it, up to the root."""
+    return [j, *ancestors_of(parents, j)]
 
 
 def _lca(parents: np.ndarray, a: int, b: int) -> int:

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from live.core.errors import FormatError
-from live.core.kinematics import forward_kinematics
+from live.core.kinematics import forward_kinematics, local_matrices
 from live.core.rotations import matrix_to_quat, quat_between, quat_to_matrix
-from live.core.skeleton import CHILDREN, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
+from live.core.skeleton import CHILDREN, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints, joints_from_offsets
 from live.io.bvh_clip import BvhClip, BvhSkeleton
 from live.io.bvh_kinematics import bvh_forward_kinematics, rest_positions
 from live.io.bvh_reader import read_bvh
@@ -74,9 +74,7 @@ def map_clip(clip: BvhClip, rig: str | RigTable | None = None, *,
     offsets = _fit_branches(src, _rest_offsets(ref_x, frames, table.name))
     correction = np.swapaxes(ref_rot, -1, -2) @ frames  # (22, 3, 3), constant per joint
     q = _global_frames(src, src_rot @ correction, offsets)
-    local = q.copy()
-    local[:, 1:] = np.swapaxes(q[:, PARENTS[1:]], -1, -2) @ q[:, 1:]
-    rotations = matrix_to_quat(local).astype(np.float32)
+    rotations = matrix_to_quat(local_matrices(q)).astype(np.float32)
     rest_joints = _rest_from_offsets(offsets).astype(np.float32)
     root = src[:, 0].astype(np.float32)
     joints, _ = forward_kinematics(rotations, root, rest_joints)
@@ -228,11 +226,9 @@ def _fit_branches(src: np.ndarray, offsets: np.ndarray, iterations: int = 3) -> 
 
 
 def _rest_from_offsets(offsets: np.ndarray) -> np.ndarray:
-    """Offsets (22, 3) -> T-pose joints with the pelvis above the origin and the feet on the
-    floor (the lowest joint at the height of default_rest_joints' foot joint, scaled)."""
-    rest = np.zeros((NUM_JOINTS, 3))
-    for j in range(1, NUM_JOINTS):
-        rest[j] = rest[PARENTS[j]] + offsets[j]
+    """Offsets (22, 3), row 0 zero -> T-pose joints with the pelvis above the origin and the feet
+    on the floor (the lowest joint at the height of default_rest_joints' foot joint, scaled)."""
+    rest = joints_from_offsets(offsets)
     low = rest[:, 1].min()
     pelvis_above_low = -low
     ratio = _DEFAULT_REST[:, 1].min() / (_DEFAULT_REST[0, 1] - _DEFAULT_REST[:, 1].min())

@@ -17,7 +17,7 @@ import numpy as np
 from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import AvatarPose, GroundTruth, SkeletonFrame
-from live.core.kinematics import forward_kinematics, joints_from_global_matrices
+from live.core.kinematics import forward_kinematics, joints_from_global_matrices, local_matrices
 from live.core.rotations import matrix_to_quat, sixd_to_matrix
 from live.core.skeleton import NUM_JOINTS, PARENTS, pelvis_height, rest_offsets
 from live.core.timing import FrameClock, frame_interval_s
@@ -128,8 +128,7 @@ class LearnedRetargeter:
         d6, droot, self.h_enc, self.h_dec = self.session.run(
             None, {"source": feat[None], "target": self._tgt_feat, "h_enc": self.h_enc, "h_dec": self.h_dec})
         glob = sixd_to_matrix(d6[0].astype(np.float64))  # the network gives world rotations
-        loc = glob.copy()
-        loc[1:] = np.swapaxes(glob[PARENTS[1:]], -1, -2) @ glob[1:]
+        loc = local_matrices(glob)
         root_t = pose[0] * self.ratio + droot[0].astype(np.float64) * self.tgt_leg
         joints = joints_from_global_matrices(glob[None], root_t[None], self._offsets)[0]
         self.feet(glob, loc, joints, self.dt if dt is None else dt)

@@ -23,6 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from live.core.frames import DepthFrame
+from live.core.heading import direction_yaw, yaw_matrix
 from models.skeleton.background import BackgroundModel
 from models.skeleton.floor import estimate_floor
 from models.skeleton.person_clusters import find_person_cluster
@@ -43,11 +44,9 @@ class PersonCloud:
 
 def _person_frame(center_xz: np.ndarray, camera_pos: np.ndarray) -> np.ndarray:
     """(4,4) person frame -> world: origin on the floor at center, +z toward the camera."""
-    d = camera_pos[[0, 2]] - center_xz
-    yaw = np.arctan2(d[0], d[1])  # rotation about +y taking +z to the camera direction
-    c, s = np.cos(yaw), np.sin(yaw)
+    to_camera = camera_pos - np.array([center_xz[0], 0.0, center_xz[1]])
     m = np.eye(4)
-    m[:3, :3] = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    m[:3, :3] = yaw_matrix(direction_yaw(to_camera))  # the yaw turning +z toward the camera
     m[0, 3], m[2, 3] = center_xz
     return m
 

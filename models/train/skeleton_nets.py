@@ -4,12 +4,12 @@ Both take person-frame points B x N x 3 (metres, see models.skeleton.preprocess)
 person-frame joints B x 22 x 3, so that the runtime, the evaluation and the export treat them
 the same way.
 
-- ``ReferencePointNet``: the published baseline as described in issue 4: input centred on its
+- ``ReferencePointNet``: the published reference PointNet baseline: input centred on its
   centroid and scaled into the unit cube, input STN (k=3), conv 3->64, feature STN (k=64),
   conv 64->128->1024, max-pool, FC 1024->512->256 (dropout 0.3) -> 66, ReLU; the normalisation
   is undone on the output; BatchNorm after every layer but the last, as in the original
-  PointNet. 3.5 M parameters with the feature STN (the issue's "about 1.6 M" is the count
-  without it; see docs/skeleton.md).
+  PointNet. 3.5 M parameters with the feature STN ("about 1.6 M" is the count without it;
+  see docs/skeleton.md).
 - ``VotingPointNet`` (ours): every point votes for every joint. A shared per-point MLP
   (3->64->128), a global max-pooled feature (->256), then per point and joint a weight logit and
   a 3D offset; joint j = sum_n softmax_n(w_nj) * (p_n + o_nj). Votes are local, so a joint is
@@ -54,7 +54,7 @@ class _STN(nn.Module):
 
 
 class ReferencePointNet(nn.Module):
-    """The reference PointNet regressor (issue 4). points B x N x 3 -> joints B x 22 x 3."""
+    """The published reference PointNet regressor. points B x N x 3 -> joints B x 22 x 3."""
 
     kind = "baseline"
 

@@ -216,8 +216,8 @@ def on_body(rot: torch.Tensor, root: torch.Tensor, clip_rest: torch.Tensor, body
 #: Error of the depth skeleton stage per joint (std per axis, mm) and its frame-to-frame
 #: correlation at 30 fps, measured on training clips (cc_002_05, mb_02_01 on heavy_male and
 #: petite_female, virtual OAK-D) behind the online temporal model (skeleton_temporal.onnx), the
-#: stage's default: `python -m research.measure_skeleton_noise`. (Behind the One Euro filter of
-#: earlier releases it was ~1.6x larger: 15-27 mm on the body, 46-51 on the wrists, 0.8.)
+#: stage's default: `python -m research.measure_skeleton_noise`. (Behind the One Euro filter, the
+#: stage without a temporal model, it is ~1.6x larger: 15-27 mm on the body, 46-51 on the wrists, 0.8.)
 DEPTH_NOISE_MM = (9, 13, 12, 9, 11, 10, 10, 16, 15, 10, 16, 16, 9, 8, 8, 9, 13, 14, 34, 31, 37, 28)
 DEPTH_NOISE_CORR = 0.87
 
