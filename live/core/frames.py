@@ -44,6 +44,7 @@ class DepthFrame:
             return self.points
         from live.core.depth import depth_to_points
 
+        assert self.depth_mm is not None and self.intrinsics is not None  # checked in __post_init__
         return depth_to_points(self.depth_mm, self.intrinsics)
 
 

@@ -28,7 +28,7 @@ import bisect
 import threading
 import time
 import weakref
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -69,6 +69,10 @@ class _RingBase:
     Subclasses implement ``_prepare(payload) -> (payload, first_kept_seq)`` (validate, and say
     which seqs the write must evict), ``_put(slot, payload)`` (store) and ``_load(slot)`` (copy out).
     """
+
+    # An attribute, not a method, so that a subclass can store a bound C method in it (no Python
+    # frame per write); CloudRing defines it as a method.
+    _put: Callable[[int, Any], None]
 
     def __init__(self, capacity: int, *, block_when_full: bool = False, name: str = "ring"):
         if int(capacity) < 1:
@@ -271,8 +275,9 @@ class _RingBase:
             tail, head, s = self._search(t_ns, right=False)
             if head < tail:
                 return None
-            cands = [self._read(c) for c in (s - 1, s) if tail <= c <= head]
-            if any(c is None for c in cands):
+            reads = [self._read(c) for c in (s - 1, s) if tail <= c <= head]
+            cands = [it for it in reads if it is not None]
+            if len(cands) < len(reads):
                 continue  # overwritten while reading: search again
             return min(cands, key=lambda it: abs(it.t_ns - t_ns))
 
@@ -297,9 +302,6 @@ class _RingBase:
         """Validate ``payload``; return it and the first seq to keep after this write."""
         seq = self._head + 1
         return payload, seq - self._cap + 1
-
-    def _put(self, slot: int, payload: Any) -> None:
-        raise NotImplementedError
 
     def _load(self, slot: int) -> Any:
         raise NotImplementedError
@@ -426,7 +428,7 @@ class Ring(_RingBase):
         name: str = "ring",
     ):
         super().__init__(capacity, block_when_full=block_when_full, name=name)
-        self.shape = (int(shape),) if np.isscalar(shape) else tuple(int(s) for s in shape)
+        self.shape = (int(shape),) if isinstance(shape, int | np.integer) else tuple(int(s) for s in shape)
         self.dtype = np.dtype(dtype)
         self._data = np.zeros((self._cap, *self.shape), dtype=self.dtype)
         self._put = self._data.__setitem__  # bound C method: no Python frame per write

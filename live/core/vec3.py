@@ -106,8 +106,10 @@ def between_units(u: Vec, v: Vec) -> tuple[tuple[float, float, float], ...]:
         o = cross(u, (1.0, 0.0, 0.0))
         if norm(o) < 1e-6:
             o = cross(u, (0.0, 1.0, 0.0))
-        o = unit(o)
-        return tuple(tuple(2.0 * o[i] * o[j] - (1.0 if i == j else 0.0) for j in range(3)) for i in range(3))
+        x, y, z = unit(o)
+        return ((2.0 * x * x - 1.0, 2.0 * x * y, 2.0 * x * z),
+                (2.0 * y * x, 2.0 * y * y - 1.0, 2.0 * y * z),
+                (2.0 * z * x, 2.0 * z * y, 2.0 * z * z - 1.0))
     s = 1.0 / (1.0 + d)
     return ((d + c[0] * c[0] * s, -c[2] + c[0] * c[1] * s, c[1] + c[0] * c[2] * s),
             (c[2] + c[1] * c[0] * s, d + c[1] * c[1] * s, -c[0] + c[1] * c[2] * s),

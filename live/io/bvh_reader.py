@@ -120,7 +120,8 @@ def _parse_hierarchy(lines: list[str], where: str) -> tuple[BvhSkeleton, int]:
             stack.pop()
             current = stack[-1] if stack else None
         elif key == "OFFSET":
-            vals = _floats(tok[1:], 3, "OFFSET", where, lineno)
+            x, y, z = _floats(tok[1:], 3, "OFFSET", where, lineno)
+            vals = (x, y, z)
             if current == -2:
                 end_offsets[-1] = vals
             elif current is not None:

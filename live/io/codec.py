@@ -131,4 +131,5 @@ def decode_imu(buf: bytes, device: str) -> MocapPacket:
             arr = _take(buf, off, dtype, n * width)
             extra[name] = arr.copy() if width == 1 else arr.reshape(n, width).copy()
             off += 8 * n * width
-    return MocapPacket(t_ns=t_ns, device=device, sensors=sensors, quats=quats, **extra)
+    return MocapPacket(t_ns=t_ns, device=device, sensors=sensors, quats=quats, counter=extra.get("counter"),
+                       acc=extra.get("acc"), gyro=extra.get("gyro"), mag=extra.get("mag"))

@@ -5,11 +5,17 @@ from __future__ import annotations
 import io
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from live.core.frames import DepthFrame, GroundTruth, MocapPacket
 from live.core.protocols import StreamInfo
 from live.io.session import SessionReader
+
+if TYPE_CHECKING:  # annotations only: the drivers load when a serial stream needs decoding
+    from drivers.text_lines import LineParser
+    from drivers.xbus import XbusParser
 
 
 def _stack(values: list, dtype, shape: tuple[int, ...]) -> np.ndarray:
@@ -28,18 +34,18 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
     depth: dict[str, dict] = defaultdict(lambda: {"t": [], "pts": [], "K": None, "c2w": None})
     serial: dict[str, dict] = defaultdict(lambda: {"t": [], "data": []})
     imu: dict[str, dict] = defaultdict(lambda: defaultdict(list))
-    gt = {"t": [], "joints": [], "rotations": [], "root": []}
-    decoders: dict[str, object] = {}
+    gt: dict[str, list] = {"t": [], "joints": [], "rotations": [], "root": []}
+    decoders: dict[str, XbusParser | LineParser] = {}
     streams: dict[str, StreamInfo] = {}
     for stream, frame in reader.frames():
         streams[stream.name] = stream
-        if stream.kind == "depth":
+        if isinstance(frame, DepthFrame):
             d = depth[stream.name]
             d["t"].append(frame.t_ns)
             d["pts"].append(frame.cloud())
             d["K"] = frame.intrinsics if frame.intrinsics is not None else d["K"]
             d["c2w"] = frame.camera_to_world
-        elif stream.kind == "serial":
+        elif isinstance(frame, MocapPacket) and stream.kind == "serial":
             serial[stream.name]["t"].append(frame.t_ns)
             serial[stream.name]["data"].append(frame.raw)
             protocol = stream.meta.get("protocol")
@@ -50,9 +56,9 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
                     decoders[stream.name] = make_parser(protocol)
                 records = decoders[stream.name].feed(frame.raw)
                 _append_imu(imu[stream.name], packet_from_records(frame.t_ns, stream.name, frame.raw, records))
-        elif stream.kind == "imu":
+        elif isinstance(frame, MocapPacket):
             _append_imu(imu[stream.name], frame)
-        elif stream.kind == "gt":
+        elif isinstance(frame, GroundTruth):
             gt["t"].append(frame.t_ns)
             gt["joints"].append(frame.joints)
             gt["rotations"].append(frame.rotations)
@@ -79,13 +85,14 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
     for name, rec in imu.items():
         if not rec["t_ns"]:
             continue
-        arrays = {"t_ns": np.asarray(rec["t_ns"], np.int64), "sensor": np.asarray(rec["sensor"], np.int32),
-                  "quat": np.asarray(rec["quat"], np.float64).reshape(-1, 4)}
+        arrays: dict[str, np.ndarray] = {
+            "t_ns": np.asarray(rec["t_ns"], np.int64), "sensor": np.asarray(rec["sensor"], np.int32),
+            "quat": np.asarray(rec["quat"], np.float64).reshape(-1, 4)}
         for key in ("counter", "acc", "gyro", "mag"):
             if rec[key] and len(rec[key]) == len(rec["t_ns"]):
                 arrays[key] = np.asarray(rec[key], np.int64 if key == "counter" else np.float64)
         p = out / f"imu_{name}.npz"
-        np.savez_compressed(p, **arrays)
+        np.savez_compressed(p, allow_pickle=False, **arrays)
         written.append(p)
     if gt["t"]:
         arrays = {"t_ns": np.asarray(gt["t"], np.int64), "joints": np.asarray(gt["joints"], np.float32),
@@ -97,7 +104,7 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
                     if key in z.files:
                         arrays[f"body_{key}"] = z[key]
         p = out / "gt.npz"
-        np.savez_compressed(p, **arrays)
+        np.savez_compressed(p, allow_pickle=False, **arrays)
         written.append(p)
     return written, reader.error
 

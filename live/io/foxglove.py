@@ -195,7 +195,7 @@ def skeleton_entity(joints: np.ndarray, t_ns: int, entity_id: str, rgba, *, conf
     a joint's alpha is 0.3 + 0.7 * confidence, so doubtful joints look faint.
     """
     joints = np.asarray(joints, np.float64).reshape(NUM_JOINTS, 3)
-    ok = np.isfinite(joints).all(axis=1)
+    ok = np.all(np.isfinite(joints), axis=1)
     spheres = []
     for j in np.flatnonzero(ok):
         alpha = rgba[3] if confidence is None else rgba[3] * (0.3 + 0.7 * float(np.clip(confidence[j], 0.0, 1.0)))
@@ -383,7 +383,7 @@ def export_foxglove(session_path: str | Path, out_path: str | Path, results_dir:
                 raise UserInputError(f"avatar_offset must be 3 finite numbers (metres), not {avatar_offset!r}")
         else:
             offset = avatar_offset_for(avatar, skeleton, next(iter(poses.values()), None))
-        export.avatar_offset = tuple(float(v) for v in offset)
+        export.avatar_offset = (float(offset[0]), float(offset[1]), float(offset[2]))
     sources = [_session_events(reader, export)]
     if skeleton is not None:
         sources.append(_track_events(skeleton, "/skeleton"))

@@ -148,11 +148,11 @@ def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.n
     return written
 
 
-def _save_atomically(path: Path, **arrays: np.ndarray) -> None:
+def _save_atomically(path: Path, **arrays: np.ndarray | np.generic) -> None:
     """An .npz that is either complete or absent, whenever the process dies."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
+        np.savez(f, allow_pickle=False, **arrays)
     os.replace(tmp, path)
 
 

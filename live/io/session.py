@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +42,9 @@ _SCHEMA_DOC = {
 # Small chunks bound what a crash can lose (an unfinished chunk) at a small cost in ratio.
 _CHUNK_SIZE = 256 * 1024
 
+# What a session holds: depth frames, serial reads or decoded IMU samples (MocapPacket), ground truth.
+SessionFrame = DepthFrame | MocapPacket | GroundTruth
+
 
 def stream_of(frame: object) -> tuple[str, str]:
     """(kind, stream name) a frame belongs to."""
@@ -57,7 +60,7 @@ def stream_of(frame: object) -> tuple[str, str]:
 class SessionWriter:
     """Writes frames into an MCAP session; a context manager that always finishes the file."""
 
-    def __init__(self, path: str | Path, streams: list[StreamInfo] = (), *, extra: dict | None = None,
+    def __init__(self, path: str | Path, streams: Sequence[StreamInfo] = (), *, extra: dict | None = None,
                  chunk_size: int = _CHUNK_SIZE, start_wall_time_ns: int | None = None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -97,13 +100,12 @@ class SessionWriter:
 
     def write(self, frame: object) -> None:
         kind, name = stream_of(frame)
-        if kind == "depth":
+        if isinstance(frame, DepthFrame):
             data = codec.encode_depth(frame)
-        elif kind == "serial":
-            data = bytes(frame.raw)
-        elif kind == "imu":
-            data = codec.encode_imu(frame)
+        elif isinstance(frame, MocapPacket):
+            data = bytes(frame.raw) if kind == "serial" else codec.encode_imu(frame)
         else:
+            assert isinstance(frame, GroundTruth)  # stream_of refused every other type
             data = codec.encode_truth(frame)
         t_ns = int(frame.t_ns)
         self._writer.add_message(self._channel(kind, name), log_time=t_ns, data=data,
@@ -197,7 +199,7 @@ class SessionReader:
                     self.error = f"{self.path.name}: replay stopped near byte {offset} of {size}: {reason}"
 
 
-    def frames(self) -> Iterator[tuple[StreamInfo, object]]:
+    def frames(self) -> Iterator[tuple[StreamInfo, SessionFrame]]:
         channels: dict[int, StreamInfo] = {}
         count = 0
         for record in self._records():
@@ -229,7 +231,7 @@ class SessionReader:
         return self.attachments.get(BODY_ATTACHMENT)
 
 
-def _decode(stream: StreamInfo, message: Message) -> object:
+def _decode(stream: StreamInfo, message: Message) -> SessionFrame:
     if stream.kind == "depth":
         return codec.decode_depth(message.data, stream.name)
     if stream.kind == "serial":
