@@ -85,7 +85,9 @@ def test_unknown_extrinsics_floor_by_ransac():
     assert cloud is not None
     # Heights are above the estimated floor: the head is ~1.75 m high whatever the camera pose.
     assert 1.6 < cloud.height_m < 1.95
-    assert finder._floor_c2w is not None
+    assert finder.up_source == "floor" and finder.ground.floor_seen
+    # The camera_to_world the frame was solved in: the camera ~1.5 m above the floor, level-ish.
+    assert cloud.camera_to_world is not None and abs(cloud.camera_to_world[1, 3] - FRONT[1, 3]) < 0.05
 
 
 def test_close_up_with_legs_out_of_frame_is_still_found():

@@ -73,15 +73,21 @@ class MocapPacket:
 
 @dataclass(frozen=True, slots=True)
 class SkeletonFrame:
-    """22 world joints (metres) with per-joint confidence in [0, 1]; t_ns is the sensor time."""
+    """22 world joints (metres) with per-joint confidence in [0, 1]; t_ns is the sensor time.
+    camera_to_world: (4, 4) the camera -> world the joints were solved in (the depth frame's own,
+    or the one the skeleton stage estimated for a camera without extrinsics), or None when the
+    skeleton does not come from a camera."""
 
     t_ns: int
     joints: np.ndarray
     confidence: np.ndarray
+    camera_to_world: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if np.shape(self.joints) != (NUM_JOINTS, 3) or np.shape(self.confidence) != (NUM_JOINTS,):
             raise ValueError("a SkeletonFrame holds (22, 3) joints and (22,) confidences")
+        if self.camera_to_world is not None and np.shape(self.camera_to_world) != (4, 4):
+            raise ValueError("a SkeletonFrame's camera_to_world is (4, 4)")
 
 
 @dataclass(frozen=True, slots=True)

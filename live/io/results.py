@@ -126,9 +126,13 @@ def read_avatar(path: str | Path) -> AvatarResults:
 
 
 # ----------------------------------------------------------------------------------- writing
-def _write_skeleton(out: Path, t_ns: np.ndarray, joints: np.ndarray, confidence: np.ndarray) -> Path:
+def _write_skeleton(out: Path, t_ns: np.ndarray, joints: np.ndarray, confidence: np.ndarray,
+                    camera_to_world: np.ndarray | None) -> Path:
     p = out / "skeleton.npz"
-    np.savez_compressed(p, t_ns=t_ns, joints=joints, confidence=confidence)
+    arrays = {"t_ns": t_ns, "joints": joints, "confidence": confidence}
+    if camera_to_world is not None and np.isfinite(camera_to_world).any():
+        arrays["camera_to_world"] = camera_to_world  # absent when no skeleton came from a camera
+    np.savez_compressed(p, allow_pickle=False, **arrays)
     return p
 
 
@@ -146,6 +150,10 @@ def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.n
         write_canonical_bvh(p, rotations, root, rest, fps)
         written.append(p)
     return written
+
+
+#: camera_to_world of a skeleton that did not come from a camera (IMU suit, ground truth).
+_NO_CAMERA = np.full((4, 4), np.nan, np.float32)
 
 
 def _save_atomically(path: Path, **arrays: np.ndarray | np.generic) -> None:
@@ -179,7 +187,9 @@ def assemble_results(out_dir: str | Path) -> list[Path]:
     written = []
     skel = _chunks(partial, "skeleton")
     if skel:
-        written.append(_write_skeleton(out, _joined(skel, "t_ns"), _joined(skel, "joints"), _joined(skel, "confidence")))
+        c2w = _joined(skel, "camera_to_world") if all("camera_to_world" in c for c in skel) else None
+        written.append(_write_skeleton(out, _joined(skel, "t_ns"), _joined(skel, "joints"), _joined(skel, "confidence"),
+                                       c2w))
     avatar = _chunks(partial, "avatar")
     if avatar:
         rest, fps = None, 30.0
@@ -209,6 +219,7 @@ class ResultsWriter:
         self.skel_t: list[int] = []
         self.skel_joints: list[np.ndarray] = []
         self.skel_conf: list[np.ndarray] = []
+        self.skel_c2w: list[np.ndarray] = []
         self.av_t: list[int] = []
         self.av_rot: list[np.ndarray] = []
         self.av_root: list[np.ndarray] = []
@@ -224,6 +235,8 @@ class ResultsWriter:
             self.skel_t.append(result.skeleton.t_ns)
             self.skel_joints.append(np.asarray(result.skeleton.joints, np.float32))
             self.skel_conf.append(np.asarray(result.skeleton.confidence, np.float32))
+            c2w = result.skeleton.camera_to_world
+            self.skel_c2w.append(_NO_CAMERA if c2w is None else np.asarray(c2w, np.float32))
         if result.avatar is not None:
             a = result.avatar
             self.av_t.append(a.t_ns)
@@ -252,13 +265,14 @@ class ResultsWriter:
         k = self._chunks_written
         if self.skel_t:
             _save_atomically(self.partial / f"skeleton-{k:06d}.npz", t_ns=np.asarray(self.skel_t, np.int64),
-                             joints=np.stack(self.skel_joints), confidence=np.stack(self.skel_conf))
+                             joints=np.stack(self.skel_joints), confidence=np.stack(self.skel_conf),
+                             camera_to_world=np.stack(self.skel_c2w))
         if self.av_t:
             _save_atomically(self.partial / f"avatar-{k:06d}.npz", t_ns=np.asarray(self.av_t, np.int64),
                              rotations=np.stack(self.av_rot), root=np.stack(self.av_root),
                              joints=np.stack(self.av_joints))
         self._chunks_written += 1
-        for held in (self.skel_t, self.skel_joints, self.skel_conf, self.av_t, self.av_rot, self.av_root,
+        for held in (self.skel_t, self.skel_joints, self.skel_conf, self.skel_c2w, self.av_t, self.av_rot, self.av_root,
                      self.av_joints):
             held.clear()
 

@@ -173,7 +173,10 @@ def depth_panel(result: FrameResult, opts: RenderOptions, size: tuple[int, int])
     depth = result.depth
     k = opts.intrinsics if depth is None or depth.intrinsics is None else depth.intrinsics
     k = default_intrinsics() if k is None else np.asarray(k, dtype=np.float64)
-    c2w = depth.camera_to_world if depth is not None else opts.camera_to_world
+    # The skeleton is drawn in the camera it was solved in: the stage's own estimate for a camera
+    # without extrinsics (a depth folder), else the frame's.
+    solved_in = result.skeleton.camera_to_world if result.skeleton is not None else None
+    c2w = solved_in if solved_in is not None else depth.camera_to_world if depth is not None else opts.camera_to_world
     c2w = np.eye(4) if c2w is None else np.asarray(c2w, dtype=np.float64)
     if depth is not None and depth.depth_mm is not None:
         img_mm = depth.depth_mm

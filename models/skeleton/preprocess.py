@@ -2,8 +2,10 @@
 
 Steps (all numpy / OpenCV, a few ms for a 640x400 frame):
 1. depth image -> camera points on a pixel stride (the person keeps thousands of points);
-2. camera -> world with the frame's camera_to_world (floor at y = 0); when the floor is not
-   known (identity extrinsics) it is found once by RANSAC (``floor.estimate_floor``);
+2. camera -> world with the frame's camera_to_world (floor at y = 0); when it is not known
+   (identity extrinsics) from the camera's IMU, a floor plane anywhere in view, or a level
+   camera refined by the performer's vertical axis with the floor placed under them
+   (``ground.GroundEstimator``);
 3. range limits, optional learned static background (``background.BackgroundModel``), floor
    removal (y < floor_margin);
 4. the largest plausible human-sized cluster: connected components of an occupancy grid on the
@@ -25,7 +27,7 @@ import numpy as np
 from live.core.frames import DepthFrame
 from live.core.heading import direction_yaw, yaw_matrix
 from models.skeleton.background import BackgroundModel
-from models.skeleton.floor import estimate_floor
+from models.skeleton.ground import GroundEstimator, body_up, floor_under_person
 from models.skeleton.person_clusters import find_person_cluster
 from models.skeleton.point_sample import fine_sample
 from models.skeleton.preprocess_config import PreprocessConfig
@@ -34,12 +36,15 @@ from models.skeleton.preprocess_config import PreprocessConfig
 @dataclass(frozen=True)
 class PersonCloud:
     """points: (N, 3) float32 in the person frame; to_world: (4, 4) person frame -> world;
-    count: person points found before sampling; floor_visible: whether the feet region is seen."""
+    count: person points found before sampling; height_m: the top of the person above the floor;
+    camera_to_world: (4, 4) the camera -> world the frame was solved in (the frame's own, or the
+    one the finder estimated)."""
 
     points: np.ndarray
     to_world: np.ndarray
     count: int
     height_m: float
+    camera_to_world: np.ndarray | None = None
 
 
 def _person_frame(center_xz: np.ndarray, camera_pos: np.ndarray) -> np.ndarray:
@@ -74,7 +79,9 @@ class FinderCounters:
     frames: int = 0
     found: int = 0
     nobody: int = 0
-    no_floor: int = 0
+    no_floor: int = 0  # frames solved without a floor in view (a level camera or the IMU's up)
+    floor_searches: int = 0
+    up_source_changes: int = 0
     tracked: int = 0  # frames searched only around the previous person
     full_searches: int = 0  # frames searched over the whole image (first, periodic, lost or cut)
 
@@ -107,6 +114,7 @@ class _Search:
     lab: int
     origin: np.ndarray
     person: np.ndarray
+    c2w: np.ndarray
 
     @cached_property
     def person_pixels(self) -> np.ndarray:
@@ -125,7 +133,9 @@ class PersonFinder:
     config: PreprocessConfig = field(default_factory=PreprocessConfig)
     background: BackgroundModel | None = None
     counters: FinderCounters = field(default_factory=FinderCounters)
-    _floor_c2w: np.ndarray | None = None
+    ground: GroundEstimator = field(default_factory=GroundEstimator)
+    _given: bool = field(default=False, repr=False)  # the last frame came with its camera_to_world
+    _height_est: float | None = field(default=None, repr=False)  # camera height, no floor in view
     _last_center: np.ndarray | None = None
     _past_depth: deque = field(default_factory=lambda: deque(maxlen=64), repr=False)
     _rays: dict = field(default_factory=dict, repr=False)  # stride -> (camera key, rays)
@@ -141,17 +151,49 @@ class PersonFinder:
         c2w = self._camera_to_world(frame, s)
         return None if c2w is None else (np.ascontiguousarray(self._world(frame, s, c2w)[0].T), c2w)
 
+    @property
+    def gravity_up(self) -> np.ndarray | None:
+        """World up in camera axes from the camera's IMU (set by the skeleton stage), or None."""
+        return self.ground.gravity_up
+
+    @gravity_up.setter
+    def gravity_up(self, up: np.ndarray | None) -> None:
+        self.ground.gravity_up = None if up is None else np.asarray(up, np.float64)
+
+    @property
+    def up_source(self) -> str | None:
+        """Where up and the floor came from: given, imu, imu+floor, floor, level, level+body."""
+        return "given" if self._given else self.ground.source
+
     def _camera_to_world(self, frame: DepthFrame, s: int) -> np.ndarray | None:
-        """The frame's camera_to_world, or when it is not known (identity extrinsics) the floor
-        found once by RANSAC and kept (the camera is static); None when no floor is seen."""
+        """The frame's camera_to_world, or when it is not known (identity extrinsics) the
+        ground estimator's (re-searched every few seconds); with no floor in view its height is
+        provisional until the performer is found (``_no_floor``)."""
         c2w = np.asarray(frame.camera_to_world, np.float64)
         if not _is_identity(c2w):
+            if not self._given:
+                self._given = True
+                self.ground.changes.append((int(frame.t_ns), "given"))
+                self.counters.up_source_changes += 1
             return c2w
-        if self._floor_c2w is None:
-            self._floor_c2w = estimate_floor(self._camera_points(frame, s))
-        if self._floor_c2w is None:
+        if self._given:
+            self._given = False
+        before = len(self.ground.changes)
+        searches = self.ground.searches
+        self.ground.update(frame.t_ns, None if not self._ground_due(frame.t_ns) else self._camera_points(frame, s))
+        self.counters.floor_searches += self.ground.searches - searches
+        self.counters.up_source_changes += len(self.ground.changes) - before
+        if not self.ground.floor_seen:
             self.counters.no_floor += 1
-        return self._floor_c2w
+        return self.ground.camera_to_world(0.0)
+
+    def _ground_due(self, t_ns: int) -> bool:
+        checked = self.ground._checked_ns
+        return checked is None or t_ns < checked or t_ns - checked >= self.ground.recheck_s * 1e9
+
+    @property
+    def _no_floor(self) -> bool:
+        return not self._given and not self.ground.floor_seen
 
     def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
                ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -205,7 +247,7 @@ class PersonFinder:
     def _world_rays(self, k: np.ndarray, shape: tuple[int, int], c2w: np.ndarray, s: int) -> np.ndarray:
         """(3, h*w) float32 world directions (camera z = 1) of the strided pixels, cached per
         stride (the coarse search and the fine sample each read theirs)."""
-        key = (np.asarray(k, np.float64).tobytes(), shape, c2w.tobytes())
+        key = (np.asarray(k, np.float64).tobytes(), shape, c2w[:3, :3].tobytes())
         cached = self._rays.get(s)
         if cached is None or cached[0] != key:
             v, u = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64) * s
@@ -241,7 +283,10 @@ class PersonFinder:
             self.counters.nobody += 1
             self._track = None
             return None
+        c2w = found.c2w
         person = found.person
+        if self._no_floor:
+            c2w, person = self._place_floor(frame.t_ns, found)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
         if whole_image:  # a window only once a whole-image search agrees with the frame before
             self._confirmed = (self._last_center is not None and cfg.track_margin_m is not None
@@ -262,12 +307,38 @@ class PersonFinder:
         local = (pts - to_world[:3, 3].astype(np.float32)) @ to_world[:3, :3].astype(np.float32)
         self.counters.found += 1
         return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
-                           count=int(person.shape[1] * scale), height_m=float(person[1].max()))
+                           count=int(person.shape[1] * scale), height_m=float(person[1].max()),
+                           camera_to_world=c2w)
+
+    def _place_floor(self, t_ns: int, found: _Search) -> tuple[np.ndarray, np.ndarray]:
+        """No floor in view: the floor under the performer (``floor_under_person``, smoothed over
+        frames), and their vertical axis refining a level camera's up. Returns the frame's
+        camera_to_world and the person's points (3, P) at that floor."""
+        person = found.person
+        y_low, y_top = (float(v) for v in np.quantile(person[1], (0.01, 0.99)))
+        height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top)
+        self._height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
+        c2w = found.c2w.copy()
+        c2w[1, 3] = self._height_est
+        person = person.copy()
+        person[1] += np.float32(self._height_est - found.c2w[1, 3])
+        if self.ground.gravity_up is None:
+            axis = body_up(person.T, np.array([0.0, 1.0, 0.0]))
+            if axis is not None:
+                self.ground.refine_with_body(t_ns, c2w[:3, :3].T @ axis)
+        return c2w, person
 
     def _search(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None,
                 depths: tuple[np.ndarray, np.ndarray] | None, min_points: int) -> _Search | None:
         """The person among the points of ``roi`` (or of the whole image), or None."""
         world, pixels = self._world(frame, s, c2w, roi)
+        if self._no_floor and world.shape[1]:
+            # No floor: lift the lowest points to it, so that everything in view is above it;
+            # the floor under the performer is placed once they are found.
+            lift = -float(np.partition(world[1], len(world[1]) // 50)[len(world[1]) // 50]) + self.config.floor_margin_m
+            world[1] += np.float32(lift)
+            c2w = c2w.copy()
+            c2w[1, 3] += lift
         above = np.flatnonzero(world[1] > self.config.floor_margin_m)
         moving = None
         if depths is not None and pixels is not None:
@@ -275,7 +346,7 @@ class PersonFinder:
         got = find_person_cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points, self.config,
                                   self._last_center, moving=moving)
         width = -(-frame.depth_mm.shape[1] // s) if frame.depth_mm is not None else 0
-        return None if got is None else _Search(world, pixels, width, above, *got)
+        return None if got is None else _Search(world, pixels, width, above, *got, c2w)
 
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
         """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by

@@ -12,6 +12,7 @@ temporal state is reset once the person has been gone for ``reset_after_s``.
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -72,9 +73,11 @@ class StageCounters:
     flushed: int = 0
 
 
-def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, height: int) -> np.ndarray:
-    """(22,) bool: each world joint (22, 3) is in front of the camera and inside its image."""
-    c2w = np.asarray(frame.camera_to_world, np.float64)
+def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, height: int,
+                   camera_to_world: np.ndarray | None = None) -> np.ndarray:
+    """(22,) bool: each world joint (22, 3) is in front of the camera and inside its image
+    (``camera_to_world``: the one the joints were solved in; default the frame's own)."""
+    c2w = np.asarray(frame.camera_to_world if camera_to_world is None else camera_to_world, np.float64)
     cam = (np.asarray(joints_world, np.float64) - c2w[:3, 3]) @ c2w[:3, :3]
     k = frame.intrinsics
     z = np.maximum(cam[:, 2], 1e-6)
@@ -118,6 +121,9 @@ class SkeletonStage:
         self.last_cloud: PersonCloud | None = None
         self._last_t: int | None = None
         self._last_frame: DepthFrame | None = None  # for the in-view check of flushed skeletons
+        # (t_ns, camera_to_world) of the last frames solved: a lagging model's skeleton is an
+        # earlier frame's, drawn in that frame's camera.
+        self._solved_in: deque[tuple[int, np.ndarray | None]] = deque(maxlen=16)
         self.reset()
 
     def reset(self) -> None:
@@ -160,6 +166,7 @@ class SkeletonStage:
         self._last_t = frame.t_ns
         t_ns = frame.t_ns
         self._last_frame = frame
+        self._solved_in.append((frame.t_ns, cloud.camera_to_world))
         if self.temporal is not None:
             refined = self.temporal(frame.t_ns, joints, support, cloud.to_world)
             if refined is None:  # a lagging model: this frame's skeleton comes later
@@ -168,19 +175,29 @@ class SkeletonStage:
             t_ns, joints, support = refined.t_ns, refined.joints, refined.confidence
         return self._finish(t_ns, joints, support, frame)
 
+    def _camera_to_world_of(self, t_ns: int) -> np.ndarray | None:
+        """The camera_to_world the frame of time ``t_ns`` was solved in (a lagging model's
+        skeleton belongs to an earlier frame)."""
+        for t, c2w in reversed(self._solved_in):
+            if t == t_ns:
+                return c2w
+        return self._solved_in[-1][1] if self._solved_in else None
+
     def _finish(self, t_ns: int, joints: np.ndarray, support: np.ndarray, frame: DepthFrame) -> SkeletonFrame:
         """Confidence (depth support, in view of ``frame``), bone lengths, One Euro: the frame out."""
         conf = support
+        c2w = self._camera_to_world_of(t_ns)
         if frame.depth_mm is not None and frame.intrinsics is not None:
             h, w = frame.depth_mm.shape
-            conf = conf * joints_in_view(joints, frame, w, h)
+            conf = conf * joints_in_view(joints, frame, w, h, c2w)
         if self.keep_bones:
             joints = self.bones(joints, conf)
         if self.use_filter:
             joints = self.euro(joints, t_ns * 1e-9)
         self._counters.skeletons += 1
         return SkeletonFrame(t_ns=t_ns, joints=joints.astype(np.float32),
-                             confidence=np.clip(conf, 0.0, 1.0).astype(np.float32))
+                             confidence=np.clip(conf, 0.0, 1.0).astype(np.float32),
+                             camera_to_world=None if c2w is None else np.asarray(c2w, np.float64))
 
     def flush(self) -> list[SkeletonFrame]:
         """At the end of a stream: the skeletons a lagging temporal model still owes (the last

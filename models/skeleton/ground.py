@@ -1,0 +1,201 @@
+"""Which way is up, and where the floor is, for a camera whose extrinsics nobody gave.
+
+The skeleton stage works in a world frame with +y up and the floor at y = 0. Sources, in order
+of trust (``GroundEstimator.camera_to_world``):
+
+1. ``given``: the frame's own camera_to_world (a calibrated rig, a synthetic session);
+2. ``imu``: the camera's accelerometer (gravity measured while the camera is still) gives up;
+   the floor height then comes from a floor plane at that orientation, or from the performer;
+3. ``floor``: a floor plane wherever one is visible (a small patch in the bottom rows, behind
+   the performer): the lowest large plane within ``max_tilt_deg`` of the level camera's up;
+4. ``level``: no floor in view (a close-up at a desk, a floor the sensor does not return): a
+   level camera, refined by the performer's own vertical axis when the whole body is seen, and
+   the floor placed under the performer (``floor_under_person``).
+
+Pure functions for the geometry; ``GroundEstimator`` keeps the estimate for a static camera,
+re-checks it every ``recheck_s`` and records each change of source (for stats.json).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Up in the camera frame (OpenCV axes: x right, y down, z forward) of a level camera.
+LEVEL_UP = np.array([0.0, -1.0, 0.0])
+#: The stature a performer is assumed to have when only their upper body is seen (the top of the
+#: head 1.70 m above the floor): the network then sees a standing person of average height.
+ASSUMED_STATURE_M = 1.70
+#: A cluster at least this tall is a whole body: its lowest points are the feet.
+WHOLE_BODY_M = 1.35
+
+
+def camera_to_world_from_up(up_cam: np.ndarray, height_m: float) -> np.ndarray:
+    """(4, 4) camera -> world for a camera whose world up, in camera axes, is ``up_cam`` and
+    whose centre is ``height_m`` above the floor: world +y up, the camera looking along world -z
+    (its heading), floor at y = 0."""
+    up = np.asarray(up_cam, np.float64)
+    up = up / np.linalg.norm(up)
+    forward = np.array([0.0, 0.0, 1.0]) - up * up[2]
+    if np.linalg.norm(forward) < 1e-6:  # looking straight up or down: any heading will do
+        forward = np.array([0.0, -1.0, 0.0]) - up * up[1]
+    forward /= np.linalg.norm(forward)
+    z_axis = -forward
+    x_axis = np.cross(up, z_axis)
+    m = np.eye(4)
+    m[:3, :3] = np.stack([x_axis, up, z_axis])  # rows: world axes in camera coordinates
+    m[:3, 3] = (0.0, height_m, 0.0)
+    return m
+
+
+def tilt_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees between two directions."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    c = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt_deg: float = 50.0,
+               distance_m: float = 0.02, min_points: int = 150, below_share: float = 0.03,
+               max_planes: int = 4, seed: int = 0) -> tuple[np.ndarray, float] | None:
+    """The floor of a camera-frame cloud (M, 3): (up, the camera's height above it), or None.
+
+    Planes are found by RANSAC (open3d), up to ``max_planes`` of them, each on what the previous
+    ones left. A plane is a floor candidate when its normal is within ``max_tilt_deg`` of
+    ``up_prior``, it holds ``min_points`` points or more, and no more than ``below_share`` of the
+    cloud lies more than 10 cm below it (a table top or a seat has the floor and legs below it;
+    the floor has nothing). The lowest candidate wins. Any part of the image may hold it: a
+    patch in the bottom rows, the floor behind the performer."""
+    import open3d as o3d
+
+    pts = np.asarray(points_cam, np.float64)
+    if len(pts) < min_points:
+        return None
+    rng = np.random.default_rng(seed)
+    prior = np.asarray(up_prior, np.float64) / np.linalg.norm(up_prior)
+    cand = pts[rng.choice(len(pts), 20000, replace=False)] if len(pts) > 20000 else pts
+    # Points far above the camera are never floor (the camera is at least a few cm above it).
+    cand = cand[cand @ prior < 0.0]
+    o3d.utility.random.seed(seed)
+    best: tuple[np.ndarray, float] | None = None
+    min_support = max(min_points, int(0.02 * len(cand)))
+    for _ in range(max_planes):
+        if len(cand) < min_support:
+            break
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cand))
+        plane, inliers = cloud.segment_plane(distance_m, 3, 200)
+        n = np.asarray(plane[:3], np.float64)
+        d = float(plane[3])
+        norm = float(np.linalg.norm(n))
+        n, d = n / norm, d / norm
+        if n @ prior < 0:
+            n, d = -n, -d
+        if len(inliers) >= min_support and tilt_deg(n, prior) <= max_tilt_deg and d > 0.05:
+            heights = pts @ n + d  # signed height of every point above the plane
+            if float(np.mean(heights < -0.10)) <= below_share and (best is None or d > best[1]):
+                best = (n, d)  # lower plane = larger camera height above it
+        keep = np.ones(len(cand), bool)
+        keep[np.asarray(inliers, np.int64)] = False
+        cand = cand[keep]
+    return best
+
+
+def body_up(points_world: np.ndarray, up: np.ndarray, max_tilt_deg: float = 25.0,
+            min_elongation: float = 2.5) -> np.ndarray | None:
+    """The vertical axis of a standing person's points (M, 3), in the frame of ``up`` (the
+    current up, same frame as the points): their longest principal axis, turned toward ``up``,
+    when it is clearly the longest (``min_elongation`` x the second) and within
+    ``max_tilt_deg`` of ``up``; else None (a close-up, a crouch, arms outstretched)."""
+    pts = np.asarray(points_world, np.float64)
+    if len(pts) < 50:
+        return None
+    centred = pts - pts.mean(axis=0)
+    evals, evecs = np.linalg.eigh(centred.T @ centred / len(pts))
+    axis = evecs[:, 2]
+    if evals[2] < min_elongation ** 2 * max(evals[1], 1e-12):
+        return None
+    if axis @ up < 0:
+        axis = -axis
+    return axis if tilt_deg(axis, up) <= max_tilt_deg else None
+
+
+def floor_under_person(y_low: float, y_top: float) -> float:
+    """The floor's height (in the current world y) under a person whose points span y_low..y_top
+    with no floor in view: under their feet when the whole body is seen, else ASSUMED_STATURE_M
+    below the top of their head."""
+    if y_top - y_low >= WHOLE_BODY_M:
+        return y_low
+    return min(y_low, y_top - ASSUMED_STATURE_M)
+
+
+@dataclass
+class GroundEstimator:
+    """The world frame of a camera without extrinsics, kept while the camera stays still.
+
+    ``gravity_up``: world up in camera axes from the camera's IMU (set by the skeleton stage),
+    or None. ``recheck_s``: how often the floor is searched again (a camera picked up and put
+    down elsewhere; a floor that came into view). ``changes``: (t_ns, source) at each change."""
+
+    recheck_s: float = 2.0
+    gravity_up: np.ndarray | None = None
+    source: str | None = None
+    changes: list[tuple[int, str]] = field(default_factory=list)
+    searches: int = 0
+    _up: np.ndarray | None = None  # up in camera axes (floor, imu or level + body axis)
+    _height: float | None = None  # camera height above the floor, when a floor is seen
+    _checked_ns: int | None = None
+
+    @property
+    def floor_seen(self) -> bool:
+        return self._height is not None
+
+    def up(self) -> np.ndarray:
+        """The current up in camera axes."""
+        if self._up is not None:
+            return self._up
+        return LEVEL_UP if self.gravity_up is None else np.asarray(self.gravity_up, np.float64)
+
+    def update(self, t_ns: int, points_cam: np.ndarray | None) -> None:
+        """Search the floor again when due (``points_cam``: the frame's camera points, or None
+        when there is nothing to search in)."""
+        due = (self._checked_ns is None or t_ns < self._checked_ns
+               or t_ns - self._checked_ns >= self.recheck_s * 1e9)
+        if not due or points_cam is None:
+            return
+        self._checked_ns = t_ns
+        self.searches += 1
+        prior = LEVEL_UP if self.gravity_up is None else np.asarray(self.gravity_up, np.float64)
+        # With gravity the floor's normal is known to a few degrees; without it, any sane pitch.
+        floor = find_floor(points_cam, prior, max_tilt_deg=8.0 if self.gravity_up is not None else 50.0)
+        if floor is not None:
+            up, height = floor
+            self._up, self._height = (prior, height) if self.gravity_up is not None else (up, height)
+            self._set_source(t_ns, "imu+floor" if self.gravity_up is not None else "floor")
+            return
+        self._height = None
+        if self.gravity_up is not None:
+            self._up = None
+            self._set_source(t_ns, "imu")
+        else:
+            if self.source not in ("level", "level+body"):
+                self._up = None
+            self._set_source(t_ns, self.source if self.source in ("level", "level+body") else "level")
+
+    def refine_with_body(self, t_ns: int, axis: np.ndarray | None, weight: float = 0.1) -> None:
+        """Blend the performer's vertical axis (camera axes) into a level camera's up."""
+        if axis is None or self.gravity_up is not None or self.floor_seen:
+            return
+        up = self.up() * (1.0 - weight) + np.asarray(axis, np.float64) * weight
+        self._up = up / np.linalg.norm(up)
+        self._set_source(t_ns, "level+body")
+
+    def camera_to_world(self, height_m: float) -> np.ndarray:
+        """(4, 4) camera -> world at the current up: the floor's height when one is seen, else
+        ``height_m`` (the caller's guess, refined from the performer)."""
+        return camera_to_world_from_up(self.up(), self._height if self._height is not None else height_m)
+
+    def _set_source(self, t_ns: int, source: str) -> None:
+        if source != self.source:
+            self.source = source
+            self.changes.append((int(t_ns), source))
