@@ -65,6 +65,17 @@ def test_imu_codec_round_trip():
     assert back.acc is None and back.gyro.shape == (2, 3)
 
 
+def test_imu_codec_round_trip_without_orientations():
+    # An IMU without on-chip fusion (the OAK's BMI270, a simulated camera IMU): acc and gyro only.
+    p = MocapPacket(5, "oak_imu", sensors=np.zeros(1, np.int32), counter=np.array([9]),
+                    acc=np.array([[0.1, -9.8, 0.2]]), gyro=np.array([[0.0, 0.01, 0.0]]))
+    back = codec.decode_imu(codec.encode_imu(p), "oak_imu")
+    assert back.quats is None and not back.decoded
+    np.testing.assert_array_equal(back.acc, p.acc)
+    np.testing.assert_array_equal(back.gyro, p.gyro)
+    np.testing.assert_array_equal(back.counter, p.counter)
+
+
 def test_codec_rejects_garbage():
     with pytest.raises(SessionError):
         codec.decode_truth(b"G\x01" + b"\x00" * 5)

@@ -95,15 +95,21 @@ def decode_truth(buf: bytes) -> GroundTruth:
     )
 
 
-_IMU_FIELDS = ("counter", "acc", "gyro", "mag")
+_IMU_FIELDS = ("counter", "acc", "gyro", "mag")  # flag bits 0-3: present
+_NO_QUATS = 1 << 4
 
 
 def encode_imu(packet: MocapPacket) -> bytes:
-    """Decoded IMU samples (for devices that hand us decoded data, e.g. the OAK's own IMU)."""
+    """Decoded IMU samples (for devices that hand us decoded data, e.g. the OAK's own IMU).
+    A packet without orientations (an IMU without on-chip fusion) sets flag bit 4 and stores none."""
     sensors = np.asarray(packet.sensors, "<i4")
     n = len(sensors)
     flags = 0
-    parts = [sensors.tobytes(), np.asarray(packet.quats, "<f8").reshape(n, 4).tobytes()]
+    parts = [sensors.tobytes()]
+    if packet.quats is None:
+        flags |= _NO_QUATS
+    else:
+        parts.append(np.asarray(packet.quats, "<f8").reshape(n, 4).tobytes())
     for bit, name in enumerate(_IMU_FIELDS):
         value = getattr(packet, name)
         if value is not None:
@@ -122,8 +128,10 @@ def decode_imu(buf: bytes, device: str) -> MocapPacket:
     off += 5
     sensors = _take(buf, off, "<i4", n).copy()
     off += 4 * n
-    quats = _take(buf, off, "<f8", 4 * n).reshape(n, 4).copy()
-    off += 32 * n
+    quats: np.ndarray | None = None
+    if not flags & _NO_QUATS:
+        quats = _take(buf, off, "<f8", 4 * n).reshape(n, 4).copy()
+        off += 32 * n
     extra: dict[str, np.ndarray] = {}
     for bit, name in enumerate(_IMU_FIELDS):
         if flags & (1 << bit):
