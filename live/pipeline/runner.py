@@ -325,6 +325,9 @@ class Pipeline:
         counters = getattr(stage, "counters", None)
         if isinstance(counters, dict) and counters:
             out["counters"] = {k: int(v) for k, v in counters.items()}
+        details = getattr(stage, "details", None)  # JSON-ready facts a stage reports (not counts)
+        if isinstance(details, dict) and details:
+            out["details"] = details
         return out
 
     def stats(self) -> dict:

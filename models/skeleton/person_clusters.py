@@ -38,12 +38,15 @@ def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, ey
 
 
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
-                        last_center: np.ndarray | None, moving: np.ndarray | None = None
+                        last_center: np.ndarray | None, moving: np.ndarray | None = None,
+                        cut_below: np.ndarray | None = None
                         ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
     """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
     the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
     moving: (M,) bool, points whose depth changed lately (``PersonFinder._moved``), or None when not
-    known; last_center: the previous person's (x, z), or None."""
+    known; last_center: the previous person's (x, z), or None; cut_below: (M,) bool, points on the
+    image's bottom edge, or None: a cluster holding some goes on below the view (a seated
+    performer's close-up, legs out of frame), so its height counts from the floor."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -128,6 +131,8 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
         cluster = pts[:, sel]
         ys = cluster[1]
         y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
+        if cut_below is not None and int(np.count_nonzero(cut_below[sel])) >= 3:
+            y_lo = min(y_lo, 0.0)
         height = float(y_hi - y_lo)
         if height < cfg.min_height_m or y_hi > cfg.max_height_m:
             continue  # too flat to be a person, or a wall / door frame seen edge-on

@@ -343,9 +343,13 @@ class PersonFinder:
         moving = None
         if depths is not None and pixels is not None:
             moving = self._moved(depths, pixels[above])
-        got = find_person_cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points, self.config,
-                                  self._last_center, moving=moving)
         width = -(-frame.depth_mm.shape[1] // s) if frame.depth_mm is not None else 0
+        cut_below = None
+        if pixels is not None:
+            rows = -(-frame.depth_mm.shape[0] // s)
+            cut_below = pixels[above] >= (rows - 2) * width  # the two bottom rows of the strided image
+        got = find_person_cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points, self.config,
+                                  self._last_center, moving=moving, cut_below=cut_below)
         return None if got is None else _Search(world, pixels, width, above, *got, c2w)
 
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:

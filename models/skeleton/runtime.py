@@ -142,6 +142,17 @@ class SkeletonStage:
         out.update({f"finder_{k}": v for k, v in asdict(self.finder.counters).items()})
         return out
 
+    @property
+    def details(self) -> dict:
+        """For stats.json: where up and the floor came from (given extrinsics, the camera's IMU,
+        a floor plane, a level camera refined by the performer), each change of that source with
+        its time, and the camera's height above the floor of the last frame solved."""
+        finder = self.finder
+        c2w = self._solved_in[-1][1] if self._solved_in else None
+        return {"up_source": finder.up_source,
+                "up_source_changes": [{"t_ns": t, "source": s} for t, s in finder.ground.changes],
+                "camera_height_m": None if c2w is None else round(float(c2w[1, 3]), 3)}
+
     def observe(self, frame: object) -> None:
         """Side frames (ground truth, mocap) carry nothing for this stage."""
 
