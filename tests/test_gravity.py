@@ -158,3 +158,34 @@ def test_pitches_and_noise_levels(pitch):
         truth = up_for_pitch(pitch, roll_deg=2.0)
         feed(est, still(truth, 1.5, rng, acc_std=acc_std))
         assert angle_deg(est.up_in_camera(), truth) < 0.5
+
+
+def test_camera_imu_packets_are_recognised_and_suit_packets_are_not():
+    from live.core.frames import MocapPacket
+    from live.core.gravity import camera_imu_sample
+
+    acc = np.array([[0.0, -9.8, 0.0]])
+    t, a, g = camera_imu_sample(MocapPacket(7, "oak_imu", sensors=np.zeros(1, np.int32), acc=acc))
+    assert t == 7 and g is None and np.array_equal(a, acc[0])
+    assert camera_imu_sample(MocapPacket(7, "oak_imu", raw=b"\x01", acc=acc)) is None  # a suit's bytes
+    assert camera_imu_sample(MocapPacket(7, "xsens0", sensors=np.zeros(1, np.int32), acc=acc)) is None
+    assert camera_imu_sample(MocapPacket(7, "oak_imu", sensors=np.zeros(2, np.int32), acc=np.ones((2, 3)))) is None
+    assert camera_imu_sample(object()) is None
+
+
+def test_skeleton_stage_hands_the_imu_up_to_the_finder():
+    from models.skeleton.runtime import SkeletonStage
+    from sim.camera_imu import CameraImu
+    from sim.depth_camera import look_at_camera
+
+    c2w = look_at_camera(3.0, 1.6, 0.3, np.radians(30.0))  # tilted 30 degrees down, yawed
+    truth = c2w[:3, :3].T @ np.array([0.0, 1.0, 0.0])
+    stage = SkeletonStage(temporal=False)
+    assert stage.finder.gravity_up is None
+    imu = CameraImu(c2w, camera="oak", seed=1)
+    for packet in imu.packets_until(int(1.5e9)):
+        stage.observe(packet)
+    stage.observe(object())
+    counters = stage.counters
+    assert counters["camera_imu_samples"] == 151 and counters["gravity_updates"] == 1
+    assert angle_deg(stage.finder.gravity_up, truth) < 1.0

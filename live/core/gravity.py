@@ -18,6 +18,11 @@ reading while the sensor is still. ``GravityEstimator`` is fed samples in the ca
 
 ``up_in_camera()`` is None until a still period was seen. Pure numpy, no I/O; the same samples
 give the same estimate.
+
+A camera's own IMU streams as ``<camera stream>_imu`` (the OAK driver, the virtual camera of
+``livecap synth --camera-imu``): decoded samples of one sensor, acc in the camera's axes, no raw
+bytes (an IMU suit's packets always carry the bytes they were parsed from).
+``camera_imu_sample(frame)`` recognises such a packet.
 """
 
 from __future__ import annotations
@@ -28,7 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from live.core.frames import MocapPacket
+
 STANDARD_GRAVITY = 9.80665
+#: The stream name of a camera's own IMU is the camera stream's name plus this.
+CAMERA_IMU_SUFFIX = "_imu"
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,16 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle in degrees between two non-zero 3-vectors."""
     c = float(a @ b) / math.sqrt(float(a @ a) * float(b @ b))
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
+
+
+def camera_imu_sample(frame: object) -> tuple[int, np.ndarray, np.ndarray | None] | None:
+    """(t_ns, acc (3,), gyro (3,) or None) when ``frame`` is a sample of a camera's own IMU
+    (module docstring), else None."""
+    if (not isinstance(frame, MocapPacket) or frame.raw or frame.acc is None
+            or not frame.device.endswith(CAMERA_IMU_SUFFIX) or np.shape(frame.acc) != (1, 3)):
+        return None
+    gyro = None if frame.gyro is None or np.shape(frame.gyro) != (1, 3) else frame.gyro[0]
+    return int(frame.t_ns), frame.acc[0], gyro
 
 
 class GravityEstimator:
@@ -186,4 +205,5 @@ class GravityEstimator:
         return self._period_sum is not None
 
 
-__all__ = ["GravityConfig", "GravityEstimator", "STANDARD_GRAVITY", "angle_deg"]
+__all__ = ["CAMERA_IMU_SUFFIX", "GravityConfig", "GravityEstimator", "STANDARD_GRAVITY", "angle_deg",
+           "camera_imu_sample"]

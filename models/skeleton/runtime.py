@@ -21,6 +21,7 @@ import numpy as np
 from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import DepthFrame, FrameResult, SkeletonFrame
+from live.core.gravity import GravityEstimator, camera_imu_sample
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
@@ -71,6 +72,9 @@ class StageCounters:
     delayed: int = 0
     # Skeletons a lagging temporal model gave at the end of the stream (flush).
     flushed: int = 0
+    # Samples of the camera's own IMU seen; ups adopted from it (the first, then each camera move).
+    camera_imu_samples: int = 0
+    gravity_updates: int = 0
 
 
 def joints_in_view(joints_world: np.ndarray, frame: DepthFrame, width: int, height: int,
@@ -124,6 +128,8 @@ class SkeletonStage:
         # (t_ns, camera_to_world) of the last frames solved: a lagging model's skeleton is an
         # earlier frame's, drawn in that frame's camera.
         self._solved_in: deque[tuple[int, np.ndarray | None]] = deque(maxlen=16)
+        # World up from the camera's own IMU while it stands still (live.core.gravity).
+        self.gravity = GravityEstimator()
         self.reset()
 
     def reset(self) -> None:
@@ -154,7 +160,19 @@ class SkeletonStage:
                 "camera_height_m": None if c2w is None else round(float(c2w[1, 3]), 3)}
 
     def observe(self, frame: object) -> None:
-        """Side frames (ground truth, mocap) carry nothing for this stage."""
+        """Side frames in stream order. The samples of the camera's own IMU (a ``<camera>_imu``
+        stream, live.core.gravity.camera_imu_sample) feed the gravity estimator, whose up in camera
+        axes the finder uses when the depth frames carry no camera_to_world; other side frames
+        (ground truth, a suit) carry nothing for this stage."""
+        sample = camera_imu_sample(frame)
+        if sample is None:
+            return
+        self._counters.camera_imu_samples += 1
+        self.gravity.add(*sample)
+        up = self.gravity.up_in_camera()
+        if up is not None:
+            self.finder.gravity_up = up
+            self._counters.gravity_updates = self.gravity.updates
 
     def estimate(self, frame: DepthFrame) -> SkeletonFrame | None:
         """One depth frame -> filtered world skeleton, or None when nobody is in view."""
