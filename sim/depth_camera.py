@@ -294,6 +294,8 @@ class VirtualDepthCamera:
             raise UserInputError(f"room must be True, False or a sim.room.Room, got {type(room)}")
         if room not in self._static:
             v, f = room.mesh()
+            if len(f) == 0:  # no floor, walls, ceiling or clutter: nothing to see
+                return self._static_view(False)
             scene = o3d.t.geometry.RaycastingScene()
             scene.add_triangles(_o3c.Tensor.from_numpy(v),
                                 _o3c.Tensor.from_numpy(f.astype(np.uint32)))

@@ -46,6 +46,8 @@ class Room:
     """A rectangular room centred on the subject: floor (y = 0), optional walls and ceiling.
 
     width along x, depth along z, height along y (metres); boxes are clutter (furniture).
+    floor False: a floor the sensor returns nothing from (dark or shiny: no depth there), left
+    out of the mesh (nothing lies under it, so it hides nothing either).
     Frozen and hashable so that a camera can cache what it sees of it.
     """
 
@@ -55,11 +57,12 @@ class Room:
     walls: bool = True
     ceiling: bool = False
     boxes: tuple[Box, ...] = field(default_factory=tuple)
+    floor: bool = True
 
     def mesh(self) -> Mesh:
         """The room as one triangle mesh (a few dozen triangles)."""
         hx, hz, h = self.width / 2, self.depth / 2, self.height
-        quads = [[(-hx, 0, -hz), (hx, 0, -hz), (hx, 0, hz), (-hx, 0, hz)]]  # floor
+        quads = [[(-hx, 0, -hz), (hx, 0, -hz), (hx, 0, hz), (-hx, 0, hz)]] if self.floor else []
         if self.walls:
             quads += [
                 [(-hx, 0, -hz), (hx, 0, -hz), (hx, h, -hz), (-hx, h, -hz)],

@@ -7,7 +7,13 @@ world joints and local rotations of the body actually rendered, per frame, and t
 
 The body is posed with the motion's local rotations (identical meaning on any body) and the
 root translation scaled by the leg-length ratio (CONVENTIONS.md). The camera looks at the centre
-of the performance area.
+of the performance area, or faces it horizontally at a given pitch.
+
+Options for scenes a real user has: a posture (``sim.postures``: the clip in place, seated on a
+chair, crouching), a floor the sensor does not return (``floor=False``: a dark or shiny floor
+reads as no depth), and hidden extrinsics (``hide_extrinsics``: the depth stream carries an
+identity camera_to_world, as a camera nobody calibrated does, while the ground truth stays in
+the world frame and the gt stream's metadata keeps the true ``camera_to_world``).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from live.motion.cleaning import trim_bind_pose
 from live.motion.clips import Motion, resample
 from live.motion.rig_mapping import load_motion
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, get_preset, look_at_camera
+from sim.postures import apply_posture, seat_boxes
 from sim.room import Room
 
 #: Session timestamps start here (3 s: room for a 2 s IMU calibration hold before the first frame), so that replayed files never depend on the wall clock.
@@ -45,7 +52,9 @@ SYNTH_WALL_TIME_NS = 1_767_225_600_000_000_000
 @dataclass(frozen=True)
 class CameraPlacement:
     """Where the camera stands relative to the centre of the performance area (metres, radians).
-    yaw 0 = in front of a performer facing +z."""
+    yaw 0 = in front of a performer facing +z. pitch None: aimed at the centre, 1 m above the
+    floor; else facing the centre horizontally, tilted *down* by pitch (``look_at_camera``'s
+    sign; ``livecap synth --pitch`` takes degrees with negative looking down)."""
 
     distance: float = 3.0
     height: float = 1.2
@@ -94,16 +103,19 @@ class SyntheticScene:
     #: (3,) what was subtracted from the motion to centre it in the room (add it back to compare
     #: with the motion's own coordinates).
     shift: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: Depth frames carry an identity camera_to_world (the camera's pose is not told).
+    hide_extrinsics: bool = False
 
     @classmethod
     def build(cls, motion: Motion, body: Body, *, camera: str = "oak-d", fps: float | None = None,
               placement: CameraPlacement | None = None, noise: NoiseModel | None = None,
-              seed: int = 0, max_range_m: float | None = None) -> SyntheticScene:
+              seed: int = 0, max_range_m: float | None = None, posture: str = "clip", floor: bool = True,
+              hide_extrinsics: bool = False) -> SyntheticScene:
         preset = get_preset(camera)
         if max_range_m is not None:
             # Like a depth threshold filter on the device (OAK-D thresholdFilter): farther is 0.
             preset = dataclasses.replace(preset, max_range_m=float(max_range_m))
-        motion = resample(motion, fps or preset.fps)
+        motion = apply_posture(resample(motion, fps or preset.fps), posture)
         root, joints = pose_motion_on_body(motion, body)
         # The room is centred on the origin: move the performance area there (x, z only).
         center = performance_center(joints)
@@ -114,9 +126,11 @@ class SyntheticScene:
                              target=(0.0, 1.0, 0.0))
         # Grow the room so the camera stands inside it, whatever the placement.
         reach = 2.0 * (np.abs(c2w[[0, 2], 3]).max() + 0.5)
-        room = Room(width=max(Room().width, reach), depth=max(Room().depth, reach))
+        room = Room(width=max(Room().width, reach), depth=max(Room().depth, reach), floor=floor,
+                    boxes=seat_boxes(joints) if posture == "seated" else ())
         cam = VirtualDepthCamera(preset, c2w, noise=noise if noise is not None else NoiseModel(), seed=seed)
-        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints, room=room, shift=shift)
+        return cls(motion=motion, body=body, camera=cam, root=root, joints=joints, room=room, shift=shift,
+                   hide_extrinsics=hide_extrinsics)
 
     @property
     def num_frames(self) -> int:
@@ -131,17 +145,30 @@ class SyntheticScene:
                            rotations=np.asarray(self.motion.rotations[i], np.float32),
                            root=self.root[i].astype(np.float32))
 
+    @property
+    def told_camera_to_world(self) -> np.ndarray:
+        """(4, 4) the camera_to_world the depth stream carries: the true one, or identity when
+        the extrinsics are hidden."""
+        return np.eye(4) if self.hide_extrinsics else self.camera.camera_to_world
+
     def depth(self, i: int, t_ns: int, sensor: str = "cam") -> DepthFrame:
         depth_mm = self.camera.render(self.vertices(i), self.body.faces, room=self.room)
-        return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=self.camera.camera_to_world,
+        return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=self.told_camera_to_world,
                           depth_mm=depth_mm, intrinsics=self.camera.intrinsics)
 
     def depth_stream(self, sensor: str = "cam") -> StreamInfo:
         p = self.camera.preset
         return StreamInfo(sensor, "depth", {
-            "intrinsics": self.camera.intrinsics.tolist(), "camera_to_world": self.camera.camera_to_world.tolist(),
+            "intrinsics": self.camera.intrinsics.tolist(), "camera_to_world": self.told_camera_to_world.tolist(),
             "width": p.width, "height": p.height, "fps": float(self.motion.fps), "camera": p.name,
             "simulated": True})
+
+    def truth_stream(self, meta: dict) -> StreamInfo:
+        """The gt stream; with hidden extrinsics its metadata keeps the true camera_to_world
+        (what the depth stream's camera is in the ground truth's world)."""
+        if self.hide_extrinsics:
+            meta = {**meta, "camera_to_world": self.camera.camera_to_world.tolist()}
+        return StreamInfo("gt", "gt", meta)
 
 
 def body_npz_bytes(body: Body) -> bytes:
@@ -164,6 +191,9 @@ class SynthOptions:
     placement: CameraPlacement = field(default_factory=CameraPlacement)
     noise: bool = True
     max_range_m: float | None = None
+    posture: str = "clip"  # sim.postures.POSTURES
+    floor: bool = True  # False: the sensor returns nothing from the floor
+    hide_extrinsics: bool = False
 
 
 def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int], None] | None = None) -> dict:
@@ -174,14 +204,15 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
     body = load_body(opts.body)
     scene = SyntheticScene.build(motion, body, camera=opts.camera, fps=opts.fps, placement=opts.placement,
                                  noise=NoiseModel() if opts.noise else NoiseModel.none(), seed=opts.seed,
-                                 max_range_m=opts.max_range_m)
+                                 max_range_m=opts.max_range_m, posture=opts.posture, floor=opts.floor,
+                                 hide_extrinsics=opts.hide_extrinsics)
     fps = float(scene.motion.fps)
     first = int(round(opts.start_s * fps))
     last = scene.num_frames if opts.seconds is None else min(scene.num_frames, first + int(round(opts.seconds * fps)))
     if last <= first:
         raise UserInputError(f"the motion has {scene.num_frames} frames at {fps:g} fps: nothing to render "
                              f"from {opts.start_s:g} s")
-    streams = [scene.depth_stream(), StreamInfo("gt", "gt", {"body": body.name, "motion": Path(opts.motion).name})]
+    streams = [scene.depth_stream(), scene.truth_stream({"body": body.name, "motion": Path(opts.motion).name})]
     suit = None
     if opts.imu:
         from sim.imu_stream import ImuStreamer
@@ -191,6 +222,10 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
     extra = {"synthetic": {"motion": Path(opts.motion).name, "body": opts.body, "camera": opts.camera,
                            "seed": opts.seed, "placement": asdict(opts.placement), "noise": opts.noise,
                            "max_range_m": opts.max_range_m}}
+    # Keys of the room options only when set: sessions without them keep their bytes.
+    for key, default in (("posture", "clip"), ("floor", True), ("hide_extrinsics", False)):
+        if getattr(opts, key) != default:
+            extra["synthetic"][key] = getattr(opts, key)
     with SessionWriter(out, streams, extra=extra, start_wall_time_ns=SYNTH_WALL_TIME_NS) as writer:
         writer.attach("body.npz", body_npz_bytes(body), create_time_ns=SYNTH_WALL_TIME_NS)
         for k, i in enumerate(range(first, last)):

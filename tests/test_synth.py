@@ -2,6 +2,7 @@
 same bytes, and the session replays like a recorded one."""
 
 import numpy as np
+import pytest
 
 from live.body.library import load_body
 from live.core.skeleton import JOINT_INDEX as J
@@ -67,3 +68,75 @@ def test_same_seed_same_bytes_and_replayable(tmp_path, shared_bvh):
     other = SynthOptions(motion=opts.motion, body=opts.body, seconds=0.5, seed=4)
     synthesize(other, tmp_path / "c.mcap")
     assert (tmp_path / "c.mcap").read_bytes() != a.read_bytes()
+
+
+def _world_points(depth, c2w):
+    from live.core.depth import depth_to_points, points_to_world
+
+    return points_to_world(depth_to_points(depth.depth_mm, depth.intrinsics), c2w)
+
+
+def test_hidden_extrinsics_keep_the_image_and_tell_the_pose_only_to_the_truth(tmp_path, shared_bvh):
+    from live.core.frames import DepthFrame
+
+    opts = SynthOptions(motion=str(shared_bvh / "mb_16_31.bvh"), body="short_male", seconds=0.2, fps=15, seed=2,
+                        placement=CameraPlacement(2.0, 0.7, 0.5, np.radians(30)))
+    told, hidden = tmp_path / "told.mcap", tmp_path / "hidden.mcap"
+    synthesize(opts, told)
+    synthesize(SynthOptions(**{**opts.__dict__, "hide_extrinsics": True}), hidden)
+    frames = {}
+    for path in (told, hidden):
+        reader = SessionReader(path)
+        frames[path] = [f for _, f in reader.frames() if isinstance(f, DepthFrame)]
+        streams = {s.kind: s for s in reader.info.streams}
+    true_c2w = np.asarray(frames[told][0].camera_to_world)
+    assert np.array_equal(np.asarray(streams["gt"].meta["camera_to_world"]), true_c2w)
+    assert np.array_equal(np.asarray(streams["depth"].meta["camera_to_world"]), np.eye(4))
+    for a, b in zip(frames[told], frames[hidden]):
+        assert np.array_equal(a.depth_mm, b.depth_mm) and np.array_equal(b.camera_to_world, np.eye(4))
+    # Pitched 30 degrees down from 0.7 m: the camera looks down (world forward y < 0).
+    assert true_c2w[1, 2] == pytest.approx(-0.5)
+
+
+def test_floor_none_returns_no_floor_depth(shared_bvh):
+    motion = load_motion(shared_bvh / "mb_12_01.bvh")
+    placement = CameraPlacement(2.5, 1.5, 0.0, np.radians(25))
+    counts = []
+    for floor in (True, False):
+        scene = SyntheticScene.build(motion, load_body("short_male"), fps=15, placement=placement, floor=floor,
+                                     posture="in-place")
+        pts = _world_points(scene.depth(5, 0), scene.camera.camera_to_world)
+        far = np.hypot(pts[:, 0] - scene.joints[5, 0, 0], pts[:, 2] - scene.joints[5, 0, 2]) > 0.8
+        inside = (np.abs(pts[:, 0]) < scene.room.width / 2 - 0.3) & (np.abs(pts[:, 2]) < scene.room.depth / 2 - 0.3)
+        counts.append(int(((np.abs(pts[:, 1]) < 0.05) & far & inside).sum()))  # floor, not walls or feet
+    assert counts[0] > 20000 and counts[1] == 0
+
+
+def test_postures_stay_in_place_sit_on_a_chair_and_crouch(shared_bvh):
+    motion = load_motion(shared_bvh / "mb_08_07.bvh")
+    body = load_body("teen_girl_14y")
+    scenes = {p: SyntheticScene.build(motion, body, fps=15, posture=p) for p in ("clip", "in-place", "seated", "crouching")}
+    travel = {p: np.ptp(s.joints[:, J["pelvis"], 2]) for p, s in scenes.items()}
+    assert travel["clip"] > 2.0 and max(travel["in-place"], travel["seated"], travel["crouching"]) < 0.3
+    pelvis = {p: np.median(s.joints[:, J["pelvis"], 1]) for p, s in scenes.items()}
+    assert pelvis["crouching"] < pelvis["seated"] < pelvis["in-place"] - 0.2
+    seated = scenes["seated"].joints
+    assert np.abs(seated[:, J["left_knee"], 1] - seated[:, J["left_hip"], 1]).max() < 0.03  # thighs level
+    feet = seated[:, [J["left_ankle"], J["right_ankle"]], 1]
+    assert feet.max() < 0.15  # on the floor
+    seat, back = scenes["seated"].room.boxes
+    assert seat.size[1] < seated[:, J["left_hip"], 1].min() and not scenes["crouching"].room.boxes
+
+
+def test_synth_command_pitch_posture_floor_and_hidden_extrinsics(tmp_path, shared_bvh):
+    from live.app.cli import main
+
+    out = tmp_path / "s.mcap"
+    assert main(["synth", "--motion", str(shared_bvh / "mb_16_31.bvh"), "--out", str(out), "--seconds", "0.2",
+                 "--fps", "15", "--height", "2.3", "--pitch", "-40", "--posture", "crouching", "--floor", "none",
+                 "--hide-extrinsics", "--quiet"]) == 0
+    reader = SessionReader(out)
+    gt = next(s for s in reader.info.streams if s.kind == "gt")
+    c2w = np.asarray(gt.meta["camera_to_world"])
+    assert c2w[1, 3] == pytest.approx(2.3) and c2w[1, 2] == pytest.approx(-np.sin(np.radians(40)))
+    assert main(["synth", "--motion", str(shared_bvh / "mb_16_31.bvh"), "--out", str(out), "--pitch", "90"]) == 2

@@ -119,6 +119,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--distance", type=float, default=3.0, help="camera distance from the performance centre, m")
     p.add_argument("--height", type=float, default=1.2, help="camera height above the floor, m")
     p.add_argument("--yaw", type=float, default=0.0, help="camera angle around the performer, degrees (0 = in front)")
+    p.add_argument("--pitch", type=float, default=None, metavar="DEG", help="camera tilt in degrees, negative looks "
+                   "down, facing the performance centre (default: aimed at the centre, 1 m above the floor)")
+    p.add_argument("--posture", choices=["clip", "in-place", "seated", "crouching"], default="clip",
+                   help="the clip as recorded (default), in place, seated on a chair, or crouching")
+    p.add_argument("--floor", choices=["seen", "none"], default="seen",
+                   help="none: the sensor returns nothing from the floor (a dark or shiny floor)")
+    p.add_argument("--hide-extrinsics", action="store_true", help="the depth stream carries an identity "
+                   "camera_to_world, as an uncalibrated camera does (the ground truth stays in the world)")
     p.add_argument("--no-noise", action="store_true", help="ideal depth (no sensor noise)")
     p.add_argument("--max-range", type=float, default=None, help="depth threshold in metres (farther reads 0), "
                    "like the device's threshold filter (default: the camera preset's range)")

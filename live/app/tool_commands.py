@@ -15,10 +15,14 @@ def cmd_synth(args) -> int:
 
     if not Path(args.motion).is_file():
         raise UserInputError(f"no such motion file: {args.motion}")
+    if args.pitch is not None and not -90.0 < args.pitch < 90.0:
+        raise UserInputError(f"--pitch is a tilt between -90 and 90 degrees, not {args.pitch:g}")
+    pitch = None if args.pitch is None else -math.radians(args.pitch)  # CameraPlacement tilts down
     opts = SynthOptions(motion=args.motion, body=args.body, camera=args.camera, seconds=args.seconds,
                         fps=args.fps, seed=args.seed, imu=args.imu, start_s=args.start, noise=not args.no_noise,
-                        max_range_m=args.max_range,
-                        placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw)))
+                        max_range_m=args.max_range, posture=args.posture, floor=args.floor == "seen",
+                        hide_extrinsics=args.hide_extrinsics,
+                        placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw), pitch))
     bar = None
     if not args.quiet:
         from tqdm import tqdm

@@ -1,0 +1,114 @@
+"""Postures for synthetic sessions: a clip played as recorded, in place, seated or crouching.
+
+The shared clips are mostly walks and runs that cross the room; a performer in front of a desk
+or a monitor stays in one spot, often seated. ``apply_posture`` turns any clip into such a
+performance on the canonical skeleton (``live.motion.clips.Motion``):
+
+- ``clip``: as recorded;
+- ``in-place``: the root's travel taken out (a centred one-second moving average of its
+  horizontal position), its sway kept: the performer moves on the spot;
+- ``seated``: in place, thighs horizontal and shins vertical, feet flat, the legs still (the
+  clip's mean heading, the pelvis at its median height), the rest of the body as recorded;
+  ``seat_boxes`` gives the chair under them;
+- ``crouching``: in place, thighs 20 degrees above horizontal, shins 15 degrees from vertical
+  (knees forward), the trunk leaning 20 degrees forward: a deep crouch.
+
+Leg angles are set in the world, about the pelvis's heading (clips tilt their pelvis by up to
+20 degrees, which would tilt the thighs with it), so they mean the same on any clip and body;
+``sim.synth.pose_motion_on_body`` then puts the feet on the floor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from live.core.errors import UserInputError
+from live.core.heading import direction_yaw, yaw_of, yaw_quat
+from live.core.kinematics import forward_kinematics
+from live.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply
+from live.core.skeleton import JOINT_INDEX
+from live.motion.clips import Motion
+from sim.room import Box
+
+POSTURES = ("clip", "in-place", "seated", "crouching")
+
+# Rotations about +x in the performer's heading frame, degrees (negative swings a leg bone
+# forward): the hip's of the thigh from hanging straight down, the knee's and ankle's relative
+# to the bone above; lean: the trunk's forward tilt added at spine1.
+_LEGS = {
+    "seated": {"hip": -90.0, "knee": 90.0, "ankle": 0.0, "lean": 0.0},
+    "crouching": {"hip": -110.0, "knee": 125.0, "ankle": -15.0, "lean": 20.0},
+}
+
+
+def _x_rotation(deg: float) -> np.ndarray:
+    return quat_from_axis_angle(np.array([np.radians(deg), 0.0, 0.0]))
+
+
+def remove_travel(root: np.ndarray, fps: float, window_s: float = 1.0) -> np.ndarray:
+    """(T, 3) root with its horizontal travel taken out: x and z minus their centred moving
+    average over ``window_s`` (the ends extended by point reflection, which continues a steady
+    walk), plus their mean."""
+    root = np.asarray(root, np.float64).copy()
+    pad = min(int(round(window_s * fps)) // 2, len(root) - 1)
+    k = 2 * pad + 1  # odd: centred
+    for axis in (0, 2):
+        x = root[:, axis]
+        padded = np.concatenate([2 * x[0] - x[pad:0:-1], x, 2 * x[-1] - x[-2:-pad - 2:-1]])
+        trend = np.convolve(padded, np.ones(k) / k, mode="valid")
+        root[:, axis] = x - trend + x.mean()
+    return root
+
+
+def apply_posture(motion: Motion, posture: str) -> Motion:
+    """The motion performed in ``posture`` (one of POSTURES); joints recomputed by FK."""
+    if posture not in POSTURES:
+        raise UserInputError(f"unknown posture {posture!r}; choose from {', '.join(POSTURES)}")
+    if posture == "clip":
+        return motion
+    root = remove_travel(motion.root, motion.fps)
+    rotations = np.asarray(motion.rotations, np.float64).copy()
+    legs = _LEGS.get(posture)
+    if legs is not None:
+        # Still legs: one heading (the clip's mean), the pelvis at its median height.
+        pelvis = rotations[:, 0]  # the root's local rotation is its global one
+        yaw = yaw_of(pelvis)
+        heading = float(np.arctan2(np.sin(yaw).mean(), np.cos(yaw).mean()))
+        root[:, 1] = np.median(root[:, 1])
+        thigh = quat_multiply(yaw_quat(np.full(len(pelvis), heading)), _x_rotation(legs["hip"]))
+        hip_local = quat_multiply(quat_conjugate(pelvis), thigh)
+        for side in ("left", "right"):
+            rotations[:, JOINT_INDEX[f"{side}_hip"]] = hip_local
+            for part in ("knee", "ankle"):
+                rotations[:, JOINT_INDEX[f"{side}_{part}"]] = _x_rotation(legs[part])
+            rotations[:, JOINT_INDEX[f"{side}_foot"]] = _x_rotation(0.0)
+        if legs["lean"]:
+            spine = JOINT_INDEX["spine1"]
+            rotations[:, spine] = quat_multiply(_x_rotation(legs["lean"]), rotations[:, spine])
+    rotations = rotations.astype(np.float32)
+    joints, _ = forward_kinematics(rotations, root, motion.rest_joints)
+    return replace(motion, rotations=rotations, root=root.astype(np.float32),
+                   joints=joints.astype(np.float32), name=f"{motion.name} ({posture})")
+
+
+def seat_boxes(joints: np.ndarray) -> tuple[Box, ...]:
+    """A chair (seat and backrest) under a seated performer's posed joints (T, 22, 3) world:
+    the seat's top 10 cm below the hip joints (the thighs' flesh), from 10 cm behind the hips
+    to 30 cm in front of them, the backrest behind the pelvis."""
+    j = np.asarray(joints, np.float64)
+    hips = j[:, [JOINT_INDEX["left_hip"], JOINT_INDEX["right_hip"]]].mean(axis=(0, 1))
+    knees = j[:, [JOINT_INDEX["left_knee"], JOINT_INDEX["right_knee"]]].mean(axis=(0, 1))
+    forward = (knees - hips) * np.array([1.0, 0.0, 1.0])
+    forward /= max(float(np.linalg.norm(forward)), 1e-9)
+    yaw = float(direction_yaw(forward))
+    top = max(float(hips[1]) - 0.10, 0.15)
+    seat_c = hips + 0.10 * forward
+    back_c = hips - 0.16 * forward
+    seat = Box((float(seat_c[0]), top / 2, float(seat_c[2])), (0.46, top, 0.42), yaw)
+    back = Box((float(back_c[0]), top + 0.25, float(back_c[2])), (0.44, 0.50, 0.05), yaw)
+    return seat, back
+
+
+__all__ = ["POSTURES", "apply_posture", "remove_travel", "seat_boxes"]
