@@ -3,14 +3,20 @@ data) plus ``intrinsics.json``, replayed in file-name order like a session.
 
 intrinsics.json: {"fx", "fy", "cx", "cy", "width", "height"} and optionally "fps" (default 30),
 "camera_to_world" (4x4 list) and "timestamps_ns" (one per image). See ../shared/CONVENTIONS.md.
+Every field is checked when the folder is opened (a FormatError names the first one that is
+wrong), and so is every image's PNG header (16-bit grayscale of width x height): no image is
+decoded before its declared size is known to fit. Images that fail are skipped and counted
+(``bad_images``); a folder where every image fails is an error.
 """
 
 from __future__ import annotations
 
-import json
+import math
+import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -19,8 +25,119 @@ import numpy as np
 from live.core.depth import intrinsics_matrix
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import DepthFrame
+from live.core.jsonfile import read_json
 from live.core.protocols import StreamInfo
 from live.core.timing import frame_interval_ns, seconds_between
+
+#: Ceilings of what intrinsics.json may declare (docs/reliability.md): a side of 8192 pixels
+#: and 2^25 pixels (64 MiB of 16-bit depth) per image, 0.01-1000 fps, timestamps spanning 11.6 days.
+MAX_IMAGE_SIDE = 8192
+MAX_IMAGE_PIXELS = 1 << 25
+MIN_FPS, MAX_FPS = 0.01, 1000.0
+MAX_SPAN_NS = 1_000_000 * 1_000_000_000
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class FolderMeta:
+    """What intrinsics.json says, checked: intrinsics (3, 3), image size, fps, camera_to_world
+    (4, 4) rigid, timestamps_ns (one per image, strictly increasing) or None."""
+
+    intrinsics: np.ndarray
+    width: int
+    height: int
+    fps: float
+    camera_to_world: np.ndarray
+    timestamps_ns: list[int] | None = field(default=None)
+
+
+def _number(meta: dict, key: str, where: str, *, positive: bool = False, default: float | None = None) -> float:
+    value = meta.get(key, default)
+    if value is None:
+        raise FormatError(f"intrinsics.json has no {key!r}", path=where)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise FormatError(f"{key} must be a finite number, not {value!r}", path=where)
+    if positive and not value > 0:
+        raise FormatError(f"{key} must be > 0, not {value!r}", path=where)
+    return float(value)
+
+
+def _side(meta: dict, key: str, where: str) -> int:
+    value = _number(meta, key, where, positive=True)
+    if value != int(value) or value > MAX_IMAGE_SIDE:
+        raise FormatError(f"{key} must be a whole number of pixels in 1..{MAX_IMAGE_SIDE}, not {meta[key]!r}",
+                          path=where)
+    return int(value)
+
+
+def _camera_to_world(value, where: str) -> np.ndarray:
+    try:
+        m = np.array(value, dtype=np.float64)
+    except (ValueError, TypeError):
+        m = np.zeros(0)
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise FormatError("camera_to_world must be a 4x4 list of finite numbers", path=where)
+    rot = m[:3, :3]
+    if (not np.allclose(m[3], [0, 0, 0, 1]) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3)
+            or np.linalg.det(rot) < 0):
+        raise FormatError("camera_to_world must be a rigid transform (a rotation and a translation)", path=where)
+    return m
+
+
+def _timestamps(value, count: int, where: str) -> list[int]:
+    if not isinstance(value, list):
+        raise FormatError(f"timestamps_ns must be a list of integers, not {type(value).__name__}", path=where)
+    if len(value) != count:
+        raise FormatError(f"timestamps_ns has {len(value)} entries for {count} images", path=where)
+    out = []
+    for i, t in enumerate(value):
+        ok = isinstance(t, int) and not isinstance(t, bool) or isinstance(t, float) and t.is_integer()
+        if not ok or not 0 <= t < 2**63:
+            raise FormatError(f"timestamps_ns[{i}] must be an integer in 0..2^63-1, not {t!r}", path=where)
+        out.append(int(t))
+    if any(b <= a for a, b in zip(out, out[1:])):
+        raise FormatError("timestamps_ns must increase from image to image", path=where)
+    if out and out[-1] - out[0] > MAX_SPAN_NS:
+        raise FormatError(f"timestamps_ns span {(out[-1] - out[0]) / 1e9:.3g} s, more than "
+                          f"{MAX_SPAN_NS / 1e9:.0f} s", path=where)
+    return out
+
+
+def read_folder_meta(path: Path, image_count: int) -> FolderMeta:
+    """Read and check a depth folder's intrinsics.json (FormatError naming what is wrong)."""
+    where = str(path)
+    meta = read_json(path)
+    if not isinstance(meta, dict):
+        raise FormatError("intrinsics.json must be a JSON object", path=where)
+    fx, fy = _number(meta, "fx", where, positive=True), _number(meta, "fy", where, positive=True)
+    cx, cy = _number(meta, "cx", where), _number(meta, "cy", where)
+    width, height = _side(meta, "width", where), _side(meta, "height", where)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise FormatError(f"{width}x{height} images are larger than {MAX_IMAGE_PIXELS} pixels", path=where)
+    fps = _number(meta, "fps", where, positive=True, default=30.0)
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise FormatError(f"fps must be in {MIN_FPS:g}..{MAX_FPS:g}, not {fps:g}", path=where)
+    c2w = _camera_to_world(meta["camera_to_world"], where) if "camera_to_world" in meta else np.eye(4)
+    stamps = meta.get("timestamps_ns")
+    return FolderMeta(intrinsics_matrix(fx, fy, cx, cy), width, height, fps, c2w,
+                      None if stamps is None else _timestamps(stamps, image_count, where))
+
+
+def png_problem(path: Path, width: int, height: int) -> str | None:
+    """Why ``path`` is not a 16-bit grayscale PNG of width x height (from its header alone), or None."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(26)
+    except OSError as exc:
+        return f"unreadable ({exc.strerror or exc})"
+    if len(head) < 26 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return "not a PNG file"
+    w, h, bits, colour = struct.unpack(">IIBB", head[16:26])
+    if bits != 16 or colour != 0:
+        return f"{bits}-bit {'grayscale' if colour == 0 else 'colour'} (depth images are 16-bit grayscale)"
+    if (w, h) != (width, height):
+        return f"{w}x{h}, not the {width}x{height} of intrinsics.json"
+    return None
 
 
 class DepthFolderSource:
@@ -32,28 +149,24 @@ class DepthFolderSource:
         if not meta_path.is_file():
             raise FormatError("a depth folder needs intrinsics.json (fx, fy, cx, cy, width, height)",
                               path=str(self.folder))
-        try:
-            meta = json.loads(meta_path.read_text())
-            self.intrinsics = intrinsics_matrix(float(meta["fx"]), float(meta["fy"]),
-                                                float(meta["cx"]), float(meta["cy"]))
-            self.width, self.height = int(meta["width"]), int(meta["height"])
-        except (ValueError, KeyError, TypeError) as exc:
-            raise FormatError(f"bad intrinsics.json ({exc})", path=str(meta_path)) from None
-        self.fps = float(meta.get("fps", 30.0))
-        self.camera_to_world = np.asarray(meta.get("camera_to_world", np.eye(4)), dtype=np.float64)
-        if self.camera_to_world.shape != (4, 4):
-            raise FormatError("camera_to_world must be a 4x4 list", path=str(meta_path))
         self.images = sorted(self.folder.glob("*.png"))
         if not self.images:
             raise FormatError("no *.png depth images", path=str(self.folder))
-        stamps = meta.get("timestamps_ns")
-        if stamps is not None and len(stamps) != len(self.images):
-            raise FormatError(f"timestamps_ns has {len(stamps)} entries for {len(self.images)} images",
-                              path=str(meta_path))
+        meta = read_folder_meta(meta_path, len(self.images))
+        self.intrinsics, self.width, self.height, self.fps = meta.intrinsics, meta.width, meta.height, meta.fps
+        self.camera_to_world = meta.camera_to_world
+        # Header problems per image, known before anything is decoded.
+        self.problems = {i: p for i, img in enumerate(self.images)
+                         if (p := png_problem(img, self.width, self.height)) is not None}
+        if len(self.problems) == len(self.images):
+            first = self.problems[0]
+            raise FormatError(f"none of the {len(self.images)} images is usable: {self.images[0].name} is {first}",
+                              path=str(self.folder))
         period = frame_interval_ns(self.fps)
-        self.timestamps = [int(t) for t in stamps] if stamps is not None else [i * period for i in range(len(self.images))]
+        self.timestamps = meta.timestamps_ns or [i * period for i in range(len(self.images))]
         self.name = name or self.folder.name or "folder"
         self.speed = speed
+        self.error: str | None = None
         self._counters = {"frames": 0, "bad_images": 0}
 
     @property
@@ -66,26 +179,42 @@ class DepthFolderSource:
             "width": self.width, "height": self.height, "fps": self.fps, "folder": str(self.folder)})]
 
     def read(self, i: int) -> np.ndarray | None:
-        img = cv2.imread(str(self.images[i]), cv2.IMREAD_UNCHANGED)
-        if img is None or img.dtype != np.uint16 or img.ndim != 2:
+        """Image i as (height, width) uint16, or None when it is not one (counted by ``run``)."""
+        if i in self.problems:
+            return None
+        try:
+            img = cv2.imread(str(self.images[i]), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            return None
+        if img is None or img.dtype != np.uint16 or img.shape != (self.height, self.width):
             return None
         return img
 
     def run(self, emit: Callable[[object], None], stop: threading.Event) -> None:
         start = time.monotonic()
         t0 = self.timestamps[0]
-        for i, t_ns in enumerate(self.timestamps):
-            if stop.is_set():
-                return
-            if self.speed:
-                delay = start + seconds_between(t0, t_ns) / self.speed - time.monotonic()
-                if delay > 0 and stop.wait(delay):
+        try:
+            for i, t_ns in enumerate(self.timestamps):
+                if stop.is_set():
                     return
-            img = self.read(i)
-            if img is None:
-                # An unreadable or non-16-bit image is a counted event, not the end of the replay.
-                self._counters["bad_images"] += 1
-                continue
-            self._counters["frames"] += 1
-            emit(DepthFrame(t_ns=t_ns, sensor=self.name, camera_to_world=self.camera_to_world,
-                            depth_mm=img, intrinsics=self.intrinsics))
+                if self.speed:
+                    delay = start + seconds_between(t0, t_ns) / self.speed - time.monotonic()
+                    if delay > 0 and stop.wait(delay):
+                        return
+                img = self.read(i)
+                if img is None:
+                    # An unreadable or non-16-bit image is a counted event, not the end of the replay.
+                    self._counters["bad_images"] += 1
+                    continue
+                self._counters["frames"] += 1
+                emit(DepthFrame(t_ns=t_ns, sensor=self.name, camera_to_world=self.camera_to_world,
+                                depth_mm=img, intrinsics=self.intrinsics))
+        finally:
+            bad = self._counters["bad_images"]
+            if bad:
+                first = next((f"{self.images[i].name}: {p}" for i, p in self.problems.items()), None)
+                self.error = (f"{self.folder}: skipped {bad} of {len(self.images)} images"
+                              + (f" (first: {first})" if first else " (not decodable)"))
+
+
+__all__ = ["DepthFolderSource", "FolderMeta", "png_problem", "read_folder_meta"]

@@ -9,15 +9,28 @@ import sys
 from pathlib import Path
 
 from live import __version__
+from live.app import arguments as arg
 from live.core.errors import LivecapError
+from live.core.text import printable
 
 EXIT_USER_ERROR = 2
 LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother temporal model, "
             "each skeleton 67 ms later with ~40 %% less jitter")
+#: Exit status when the machine, not the user, is at fault (out of memory): still one line.
+EXIT_FAILURE = 1
+
+
+class LivecapParser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``livecap CMD: error: ...`` and exit status 2 (the usage
+    is a --help away)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
 
 
 def _add_replay_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--speed", default="max", help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
+    p.add_argument("--speed", type=arg.speed, default="max",
+                   help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
     _add_output_options(p)
 
 
@@ -28,19 +41,26 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
     p.add_argument("--no-foot-lock", action="store_true", help="do not lock feet in contact with the floor")
     p.add_argument("--hand-ik", action="store_true", help="hands reach where the performer's hands reach (scaled)")
     p.add_argument("--model", type=Path, default=None, help="skeleton model (.onnx; default: the shipped one)")
-    p.add_argument("--threads", type=int, default=1, help="onnxruntime threads for the skeleton model (default 1)")
-    p.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
+    p.add_argument("--threads", type=arg.threads, default=1, help="onnxruntime threads for the skeleton model "
+                   f"(default 1, at most {arg.MAX_THREADS})")
+    p.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help=LAG_HELP)
     p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
                    "(e.g. 127.0.0.1:39539); off unless given")
-    p.add_argument("--vmc-rate", type=float, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
-    p.add_argument("--viewer", nargs="?", const="spawn", default=None, metavar="spawn|web|save:FILE.rrd",
-                   help="show the live viewer (Rerun; the viewer extra)")
+    p.add_argument("--vmc-rate", type=arg.vmc_rate, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
+    p.add_argument("--viewer", nargs="?", const="spawn", default=None, metavar="spawn|web[:ADDR]|save:FILE.rrd",
+                   help="show the live viewer (Rerun; the viewer extra): spawn the native viewer, serve the web "
+                   "viewer on 127.0.0.1 (web:0.0.0.0 serves the local network), or save a recording")
     p.add_argument("--video", type=Path, default=None, help="also write a rendered video (.mp4)")
+    _add_force(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _add_force(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true", help="overwrite output files that exist")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="livecap", description="Open, ROS-free live human capture: depth cameras and "
+    parser = LivecapParser(prog="livecap", description="Open, ROS-free live human capture: depth cameras and "
                                      "IMU suits -> 3D skeleton -> retargeted avatar, live.")
     parser.add_argument("--version", action="version", version=f"livecap {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
@@ -51,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "and the result files into --out.")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
     p.add_argument("--session", type=Path, default=None, help="another session to use instead of the bundled one")
-    p.add_argument("--speed", default="max", help="1.0 = recorded timing, max = as fast as possible (default)")
+    p.add_argument("--speed", type=arg.speed, default="max",
+                   help="1.0 = recorded timing, max = as fast as possible (default)")
     p.add_argument("--no-video", action="store_true", help="skip writing demo.mp4")
     _add_output_options(p, avatar_default="default")
 
@@ -70,7 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source", action="append", required=True, help="source string (repeatable): oak, oak:MXID, "
                    "realsense, serial:PORT:xbus|lines[:baud], replay:S.mcap, folder:DIR, sim:CLIP.bvh")
     p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
-    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--seconds", type=arg.positive_seconds, default=None,
+                   help="stop after this many seconds (default: Ctrl-C)")
+    _add_force(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("run", help="run the live pipeline on sources",
@@ -78,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source", action="append", required=True, help="source string (repeatable), see `record`")
     p.add_argument("--out", type=Path, default=Path("run_out"), help="folder for stats.json and results")
     p.add_argument("--record", type=Path, default=None, help="also record the sources into this session file")
-    p.add_argument("--seconds", type=float, default=None, help="stop after this many seconds (default: Ctrl-C)")
+    p.add_argument("--seconds", type=arg.positive_seconds, default=None,
+                   help="stop after this many seconds (default: Ctrl-C)")
     _add_output_options(p)
 
     p = sub.add_parser("export", help="export a session's streams as .npz files",
@@ -89,7 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write a Foxglove-ready MCAP (PointCloud, SceneUpdate, FrameTransforms) instead")
     p.add_argument("--results", type=Path, default=None, help="with --foxglove: a replay's output folder "
                    "(skeleton.npz, avatar.npz) to include")
-    p.add_argument("--max-points", type=int, default=None, help="with --foxglove: subsample clouds to this many points")
+    p.add_argument("--max-points", type=arg.max_points, default=None,
+                   help="with --foxglove: subsample clouds to this many points")
+    _add_force(p)
 
     p = sub.add_parser("info", help="describe a session file", description="Print a session's streams, "
                        "message counts, duration and metadata.")
@@ -101,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "the skeleton drawn over it beside the shaded avatar, with timing and confidence captions.")
     p.add_argument("session", help="a .mcap session or a depth folder")
     p.add_argument("--out", type=Path, required=True, help="video file to write (.mp4)")
-    p.add_argument("--speed", default="max", help=argparse.SUPPRESS)
+    p.add_argument("--speed", type=arg.speed, default="max", help=argparse.SUPPRESS)
     _add_output_options(p, avatar_default="default")
 
     p = sub.add_parser("synth", help="write a synthetic session (a motion on a body, seen by a virtual camera)",
@@ -111,14 +137,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--body", default="performer", help="body preset, body .npz, or anny:k=v,... (default: performer)")
     p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
     p.add_argument("--camera", default="oak-d", help="oak-d (default), oak-d-pro, kinect-v1")
-    p.add_argument("--seconds", type=float, default=None, help="length (default: the whole clip)")
-    p.add_argument("--start", type=float, default=0.0, help="start this many seconds into the clip")
-    p.add_argument("--fps", type=float, default=None, help="sensor rate (default: the camera preset's)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--seconds", type=arg.positive_seconds, default=None, help="length (default: the whole clip)")
+    p.add_argument("--start", type=arg.start_seconds, default=0.0, help="start this many seconds into the clip")
+    p.add_argument("--fps", type=arg.fps, default=None, help="sensor rate (default: the camera preset's)")
+    p.add_argument("--seed", type=arg.seed, default=0, help="noise seed (default 0)")
     p.add_argument("--imu", choices=["xbus", "lines"], default=None, help="also stream a simulated IMU suit")
-    p.add_argument("--distance", type=float, default=3.0, help="camera distance from the performance centre, m")
-    p.add_argument("--height", type=float, default=1.2, help="camera height above the floor, m")
-    p.add_argument("--yaw", type=float, default=0.0, help="camera angle around the performer, degrees (0 = in front)")
+    p.add_argument("--distance", type=arg.camera_distance, default=3.0,
+                   help="camera distance from the performance centre, m")
+    p.add_argument("--height", type=arg.camera_height, default=1.2, help="camera height above the floor, m")
+    p.add_argument("--yaw", type=arg.angle_degrees, default=0.0,
+                   help="camera angle around the performer, degrees (0 = in front)")
     p.add_argument("--pitch", type=float, default=None, metavar="DEG", help="camera tilt in degrees, negative looks "
                    "down, facing the performance centre (default: aimed at the centre, 1 m above the floor)")
     p.add_argument("--posture", choices=["clip", "in-place", "seated", "crouching"], default="clip",
@@ -128,8 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hide-extrinsics", action="store_true", help="the depth stream carries an identity "
                    "camera_to_world, as an uncalibrated camera does (the ground truth stays in the world)")
     p.add_argument("--no-noise", action="store_true", help="ideal depth (no sensor noise)")
-    p.add_argument("--max-range", type=float, default=None, help="depth threshold in metres (farther reads 0), "
-                   "like the device's threshold filter (default: the camera preset's range)")
+    p.add_argument("--max-range", type=arg.depth_range, default=None, help="depth threshold in metres (farther "
+                   "reads 0), like the device's threshold filter (default: the camera preset's range)")
+    _add_force(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("eval", help="evaluate the skeleton regressor or a retargeter against ground truth",
@@ -142,8 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("sessions", nargs="+", type=Path, help="sessions with ground truth (e.g. from `livecap synth`)")
     e.add_argument("--model", type=Path, default=None, help="model to evaluate (default: the shipped one)")
     e.add_argument("--compare", choices=["baseline"], default=None, help="also evaluate the reference PointNet")
-    e.add_argument("--threads", type=int, default=1)
-    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help=LAG_HELP)
+    e.add_argument("--threads", type=arg.threads, default=1)
+    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help=LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
     e.add_argument("--motion", required=True, help="a BVH clip")
@@ -152,8 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
                    help="start from ground-truth skeletons or run the whole chain from the virtual camera")
     e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
-    e.add_argument("--max-frames", type=int, default=None)
-    e.add_argument("--lag", type=int, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
+    e.add_argument("--max-frames", type=arg.max_frames, default=None)
+    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
 
     p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
@@ -170,8 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="calibration file to write (.json)")
     p.add_argument("--pose", choices=["tpose", "npose"], default="tpose")
     p.add_argument("--layout", default=None, help="suit layout JSON (default: the 15-sensor full-body layout)")
-    p.add_argument("--height", type=float, default=1.75, help="performer height in metres")
-    p.add_argument("--timeout", type=float, default=60.0, help="give up after this many seconds")
+    p.add_argument("--height", type=arg.performer_height, default=1.75, help="performer height in metres")
+    p.add_argument("--timeout", type=arg.positive_seconds, default=60.0, help="give up after this many seconds")
+    _add_force(p)
 
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
                    description="List connected OAK devices, RealSense devices and serial ports.")
@@ -208,19 +238,31 @@ def limit_blas_threads() -> None:
 def main(argv: list[str] | None = None) -> int:
     limit_blas_threads()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a bad option (one line printed), --help or --version
+        return exc.code if isinstance(exc.code, int) else EXIT_USER_ERROR
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="livecap: %(message)s")
     if args.command is None:
         parser.print_help()
         return EXIT_USER_ERROR
+    def fail(message: str, status: int = EXIT_USER_ERROR) -> int:
+        print(f"livecap {args.command}: error: {printable(message, max_chars=600)}", file=sys.stderr)
+        return status
+
     try:
+        arg.check_outputs(args.command, args)
         return int(_command(args.command)(args) or 0)
     except LivecapError as exc:
-        print(f"livecap {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_USER_ERROR
+        return fail(str(exc))
     except FileNotFoundError as exc:
-        print(f"livecap {args.command}: error: no such file: {exc.filename}", file=sys.stderr)
-        return EXIT_USER_ERROR
+        return fail(f"no such file: {exc.filename}")
+    except (PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+        return fail(f"cannot use {exc.filename}: {exc.strerror}")
+    except MemoryError as exc:
+        # Declared sizes are checked against ceilings before allocating (docs/reliability.md); if
+        # the machine still runs out, say so in one line.
+        return fail(f"out of memory ({exc or 'allocation failed'})", EXIT_FAILURE)
     except KeyboardInterrupt:
         print(f"livecap {args.command}: interrupted", file=sys.stderr)
         return 130

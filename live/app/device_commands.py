@@ -22,9 +22,9 @@ def cmd_calibrate(args) -> int:
     from live.imu.calibration import CalibrationCollector
     from live.imu.layout import load_suit_layout
 
+    layout = load_suit_layout(args.layout)  # a bad layout file is reported before the port is opened
     source = open_source(args.source)
-    collector = CalibrationCollector(load_suit_layout(args.layout), args.pose,
-                                     default_rest_joints(args.height), hold_s=2.0)
+    collector = CalibrationCollector(layout, args.pose, default_rest_joints(args.height), hold_s=2.0)
     stop = threading.Event()
     found = []
 

@@ -28,6 +28,7 @@ import numpy as np
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.heading import yaw_of, yaw_quat
+from live.core.jsonfile import read_json
 from live.core.rotations import (
     quat_angle,
     quat_between,
@@ -74,7 +75,7 @@ def pose_globals(pose: str, rest_joints: np.ndarray | None = None) -> np.ndarray
 class Calibration:
     """Per-sensor corrections, S sensors (layout order). G_j = heading * q_s * offset.
 
-    sensors (S,) int32; joints (S,) int64 segment joint; heading (S, 4) yaw quaternions;
+    sensors (S,) int64; joints (S,) int64 segment joint; heading (S, 4) yaw quaternions;
     offset (S, 4) sensor-to-segment rotations; spread_deg (S,) how much each sensor moved during
     the hold (max angle from its mean); pose; rest_joints (22, 3) the performer's T-pose skeleton
     (from their height, or later from the depth skeleton); t_ns (2,) the hold window."""
@@ -103,16 +104,31 @@ class Calibration:
 
     @classmethod
     def from_json(cls, obj: dict, path: str | None = None) -> Calibration:
+        """A calibration from its JSON object, every field checked (FormatError naming the first
+        that is wrong): S sensors with one known segment each, unit quaternions, finite numbers."""
+        if not isinstance(obj, dict):
+            raise FormatError(f"not a calibration file (a JSON object, not {type(obj).__name__})", path=path)
         try:
             S = len(obj["sensors"])
-            cal = cls(sensors=np.asarray(obj["sensors"], np.int32),
-                      joints=np.array([JOINT_INDEX[n] for n in obj["segments"]], np.int64),
-                      heading=np.asarray(obj["heading"], np.float64).reshape(S, 4),
-                      offset=np.asarray(obj["offset"], np.float64).reshape(S, 4),
-                      spread_deg=np.asarray(obj.get("spread_deg", [0.0] * S), np.float64),
-                      pose=str(obj["pose"]), rest_joints=np.asarray(obj["rest_joints"], np.float64).reshape(22, 3),
+            if not isinstance(obj["sensors"], list) or len(obj["segments"]) != S:
+                raise ValueError("sensors and segments must be lists of the same length")
+            sensors = np.asarray(obj["sensors"])
+            if S and (sensors.dtype.kind not in "iu" or sensors.min() < 0 or sensors.max() > np.iinfo(np.int64).max):
+                raise ValueError("sensor ids must be non-negative integers")
+            cal = cls(sensors=sensors.astype(np.int64),
+                      joints=np.array([JOINT_INDEX[str(n)] for n in obj["segments"]], np.int64),
+                      heading=_finite(obj["heading"], (S, 4), "heading"),
+                      offset=_finite(obj["offset"], (S, 4), "offset"),
+                      spread_deg=_finite(obj.get("spread_deg", [0.0] * S), (S,), "spread_deg"),
+                      pose=str(obj["pose"]), rest_joints=_finite(obj["rest_joints"], (NUM_JOINTS, 3), "rest_joints"),
                       t_ns=tuple(int(v) for v in obj.get("t_ns", (0, 0))))
-        except (KeyError, ValueError, TypeError) as e:
+            for key in ("heading", "offset"):
+                norms = np.linalg.norm(getattr(cal, key), axis=-1)
+                if S and np.abs(norms - 1.0).max() > 1e-3:
+                    raise ValueError(f"{key} must hold unit quaternions (norms {norms.min():.3g}..{norms.max():.3g})")
+            if cal.pose not in POSES:
+                raise ValueError(f"pose must be one of {POSES}")
+        except (KeyError, ValueError, TypeError, OverflowError) as e:
             raise FormatError(f"not a calibration file ({type(e).__name__}: {e})", path=path) from None
         return cal
 
@@ -126,11 +142,17 @@ class Calibration:
         p = Path(path)
         if not p.is_file():
             raise UserInputError(f"calibration file not found: {p}")
-        try:
-            obj = json.loads(p.read_text())
-        except json.JSONDecodeError as e:
-            raise FormatError(f"not JSON: {e.msg}", path=str(p), line=e.lineno) from None
-        return cls.from_json(obj, path=str(p))
+        return cls.from_json(read_json(p), path=str(p))
+
+
+def _finite(value, shape: tuple[int, ...], key: str) -> np.ndarray:
+    """A float64 array of the given shape with finite values (ValueError otherwise)."""
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != shape:
+        raise ValueError(f"{key} must have shape {shape}, not {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"{key} holds NaN or infinite values")
+    return a
 
 
 def collect_samples(packets: Iterable[MocapPacket], layout: SuitLayout) -> dict[int, list]:
