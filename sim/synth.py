@@ -1,7 +1,8 @@
 """Synthetic sessions with exact ground truth: a motion on a body, seen by a virtual camera.
 
 ``livecap synth --motion CLIP.bvh --body SPEC --out S.mcap`` writes a session exactly like a
-recorded one (depth stream, optionally a serial IMU stream) plus ground-truth channels: the 22
+recorded one (depth stream, optionally a serial IMU suit and the camera's own IMU,
+``sim.camera_imu``) plus ground-truth channels: the 22
 world joints and local rotations of the body actually rendered, per frame, and the body itself
 (attachment ``body.npz``). Same arguments and seed -> same bytes.
 
@@ -191,6 +192,7 @@ class SynthOptions:
     placement: CameraPlacement = field(default_factory=CameraPlacement)
     noise: bool = True
     max_range_m: float | None = None
+    camera_imu: bool = False  # also the camera's own IMU (sim.camera_imu)
     posture: str = "clip"  # sim.postures.POSTURES
     floor: bool = True  # False: the sensor returns nothing from the floor
     hide_extrinsics: bool = False
@@ -219,20 +221,31 @@ def synthesize(opts: SynthOptions, out: str | Path, progress: Callable[[int, int
 
         suit = ImuStreamer(scene, protocol=opts.imu, seed=opts.seed)
         streams.append(suit.stream_info())
+    camera_imu = None
+    if opts.camera_imu:
+        from sim.camera_imu import CameraImu
+
+        # Like an OAK's <camera>_imu stream, from the true pose (also when the depth stream hides it);
+        # the camera was on, and still, for a second before it streamed depth.
+        camera_imu = CameraImu(scene.camera.camera_to_world, camera=streams[0].name, seed=opts.seed,
+                               start_ns=T0_NS - 1_000_000_000)
+        streams.append(camera_imu.stream_info())
     extra = {"synthetic": {"motion": Path(opts.motion).name, "body": opts.body, "camera": opts.camera,
                            "seed": opts.seed, "placement": asdict(opts.placement), "noise": opts.noise,
                            "max_range_m": opts.max_range_m}}
     # Keys of the room options only when set: sessions without them keep their bytes.
-    for key, default in (("posture", "clip"), ("floor", True), ("hide_extrinsics", False)):
+    for key, default in (("posture", "clip"), ("floor", True), ("hide_extrinsics", False), ("camera_imu", False)):
         if getattr(opts, key) != default:
             extra["synthetic"][key] = getattr(opts, key)
     with SessionWriter(out, streams, extra=extra, start_wall_time_ns=SYNTH_WALL_TIME_NS) as writer:
         writer.attach("body.npz", body_npz_bytes(body), create_time_ns=SYNTH_WALL_TIME_NS)
         for k, i in enumerate(range(first, last)):
             t_ns = T0_NS + frame_offset_ns(k, fps)
-            if suit is not None:
-                for packet in suit.packets_until(i, t_ns):
-                    writer.write(packet)
+            side = [] if suit is None else list(suit.packets_until(i, t_ns))
+            if camera_imu is not None:  # both side streams in time order
+                side = sorted(side + camera_imu.packets_until(t_ns), key=lambda p: p.t_ns)
+            for packet in side:
+                writer.write(packet)
             writer.write(scene.truth(i, t_ns))
             writer.write(scene.depth(i, t_ns))
             if progress is not None:

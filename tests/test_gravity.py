@@ -189,3 +189,53 @@ def test_skeleton_stage_hands_the_imu_up_to_the_finder():
     counters = stage.counters
     assert counters["camera_imu_samples"] == 151 and counters["gravity_updates"] == 1
     assert angle_deg(stage.finder.gravity_up, truth) < 1.0
+
+
+def test_synthetic_camera_imu_gives_up_when_extrinsics_are_hidden(tmp_path, shared_bvh):
+    """A camera tilted 30 degrees down whose depth stream hides its pose: the recorded camera IMU
+    survives record -> replay, and the skeleton stage's finder gets an up within 1 degree."""
+    import json
+
+    from live.core.frames import DepthFrame, MocapPacket
+    from live.io.session import SessionReader
+    from models.skeleton.runtime import SkeletonStage
+    from sim.synth import CameraPlacement, SynthOptions, synthesize
+
+    base = dict(motion=str(shared_bvh / "cc_002_01.bvh"), seconds=0.5, start_s=1.0, seed=4,
+                placement=CameraPlacement(distance=2.8, height=1.9, yaw=0.5, pitch=np.radians(30.0)),
+                hide_extrinsics=True)
+    with_imu, without = tmp_path / "imu.mcap", tmp_path / "plain.mcap"
+    synthesize(SynthOptions(**base, camera_imu=True), with_imu)
+    synthesize(SynthOptions(**base), without)
+
+    reader = SessionReader(with_imu)
+    streams = {s.name: s for s in reader.info.streams}
+    assert streams["cam_imu"].kind == "imu" and streams["cam_imu"].meta["frame"] == "camera"
+    assert json.loads(reader.info.extra["synthetic"])["camera_imu"] is True
+    truth_c2w = np.asarray(streams["gt"].meta["camera_to_world"])
+    truth_up = truth_c2w[:3, :3].T @ np.array([0.0, 1.0, 0.0])
+
+    stage = SkeletonStage(temporal=False)
+    packets, depth = [], []
+    for _, frame in reader.frames():
+        if isinstance(frame, DepthFrame):
+            assert np.array_equal(frame.camera_to_world, np.eye(4))  # the pose is withheld
+            depth.append(frame)
+            stage.estimate(frame)
+        else:
+            stage.observe(frame)
+            if isinstance(frame, MocapPacket):
+                packets.append(frame)
+    assert reader.error is None
+    # 100 Hz from 1 s before the first frame to the last one; acc and gyro survive the recording.
+    assert len(packets) == 100 + 14 * 100 // 30 + 1
+    assert all(p.device == "cam_imu" and p.quats is None and p.acc.shape == (1, 3) for p in packets)
+    assert np.all(np.diff([p.t_ns for p in packets]) > 0)
+    assert angle_deg(stage.gravity.up_in_camera(), truth_up) < 1.0
+    assert angle_deg(stage.finder.gravity_up, truth_up) < 1.0
+    assert stage.counters["gravity_updates"] == 1 and stage.finder.up_source.startswith("imu")
+
+    # The camera IMU draws its own random numbers: the depth frames are those of the plain session.
+    plain = [f for _, f in SessionReader(without).frames() if isinstance(f, DepthFrame)]
+    assert len(plain) == len(depth)
+    assert all(np.array_equal(a.depth_mm, b.depth_mm) for a, b in zip(plain, depth))

@@ -142,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=arg.fps, default=None, help="sensor rate (default: the camera preset's)")
     p.add_argument("--seed", type=arg.seed, default=0, help="noise seed (default 0)")
     p.add_argument("--imu", choices=["xbus", "lines"], default=None, help="also stream a simulated IMU suit")
+    p.add_argument("--camera-imu", action="store_true", help="also stream the camera's own IMU (accelerometer and gyro of a still OAK, as <camera>_imu)")
     p.add_argument("--distance", type=arg.camera_distance, default=3.0,
                    help="camera distance from the performance centre, m")
     p.add_argument("--height", type=arg.camera_height, default=1.2, help="camera height above the floor, m")

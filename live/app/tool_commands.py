@@ -20,6 +20,7 @@ def cmd_synth(args) -> int:
     pitch = None if args.pitch is None else -math.radians(args.pitch)  # CameraPlacement tilts down
     opts = SynthOptions(motion=args.motion, body=args.body, camera=args.camera, seconds=args.seconds,
                         fps=args.fps, seed=args.seed, imu=args.imu, start_s=args.start, noise=not args.no_noise,
+                        camera_imu=args.camera_imu,
                         max_range_m=args.max_range, posture=args.posture, floor=args.floor == "seen",
                         hide_extrinsics=args.hide_extrinsics,
                         placement=CameraPlacement(args.distance, args.height, math.radians(args.yaw), pitch))
