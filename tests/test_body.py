@@ -169,7 +169,7 @@ def _arrays(body: Body) -> dict:
     (dict(name="drop"), "'name'"),
     (dict(faces="drop"), "'faces'"),
     (dict(phenotype="not_json"), "JSON"),
-    (dict(weights="pickled"), "not a readable body file"),
+    (dict(weights="pickled"), "dtype object is not allowed"),
 ])
 def test_bad_body_files_raise_format_errors(tmp_path, change, message):
     arrays = _arrays(load_body("performer"))

@@ -38,22 +38,111 @@ def is_geometry_file(spec: str | Path) -> bool:
     return Path(str(spec)).suffix.lower() in MESH_SUFFIXES + CLOUD_SUFFIXES
 
 
+#: Ceilings of an avatar mesh or cloud (docs/reliability.md). Counts declared in a PLY, OFF or
+#: binary STL header are checked against them and against the file's size before open3d reads
+#: it (open3d would reserve what the header says: 2e9 vertices are 24 GB).
+MAX_AVATAR_FILE_BYTES = 256 * 1024 * 1024
+MAX_AVATAR_VERTICES = 2_000_000
+MAX_AVATAR_FACES = 4_000_000
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _declared(kind: str, count: int, minimum_bytes: int, room: int, where: str) -> None:
+    ceiling = MAX_AVATAR_VERTICES if kind == "vertex" else MAX_AVATAR_FACES
+    if count > ceiling and kind in ("vertex", "face"):
+        raise FormatError(f"declares {count} {kind} elements, more than the {ceiling} an avatar may have", path=where)
+    if count * minimum_bytes > room:
+        raise FormatError(f"declares {count} {kind} elements, more than its {room} bytes can hold", path=where)
+
+
+def _check_ply(data: bytes, size: int, where: str) -> None:
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise FormatError("not a PLY file (no 'ply' ... 'end_header' header)", path=where)
+    lines = data[:end].decode("ascii", "replace").splitlines()
+    binary = any(ln.split()[:2] in (["format", "binary_little_endian"], ["format", "binary_big_endian"])
+                 for ln in lines if ln.strip())
+    elements: list[list] = []  # [name, count, bytes per element at least]
+    for ln in lines:
+        tok = ln.split()
+        if tok[:1] == ["element"] and len(tok) == 3:
+            if not tok[2].isdigit():
+                raise FormatError(f"bad element count {tok[2]!r}", path=where)
+            elements.append([tok[1], int(tok[2]), 0])
+        elif tok[:1] == ["property"] and elements and len(tok) >= 3:
+            # A list property holds at least its count; text needs at least 2 bytes a value.
+            elements[-1][2] += (_PLY_SIZES.get(tok[2], 1) if tok[1] == "list" else _PLY_SIZES.get(tok[1], 1)) \
+                if binary else 2
+    room = size - end
+    for name, count, least in elements:
+        _declared(name, count, max(least, 1), room, where)
+
+
+def _check_off(data: bytes, size: int, where: str) -> None:
+    tok = data[:4096].decode("ascii", "replace").split()
+    if not tok or not tok[0].endswith("OFF"):
+        raise FormatError("not an OFF file", path=where)
+    counts = tok[1:4]
+    if len(counts) < 2 or not all(t.isdigit() for t in counts[:2]):
+        raise FormatError("an OFF file needs vertex and face counts after 'OFF'", path=where)
+    _declared("vertex", int(counts[0]), 6, size, where)   # "0 0 0\n"
+    _declared("face", int(counts[1]), 8, size, where)     # "3 0 1 2\n"
+
+
+def _check_stl(data: bytes, size: int, where: str) -> None:
+    if data[:5].lower() == b"solid" and b"facet" in data[:4096]:
+        return  # text STL: read line by line, bounded by the file size
+    if len(data) < 84:
+        raise FormatError("not an STL file (shorter than a binary STL header)", path=where)
+    _declared("face", int.from_bytes(data[80:84], "little"), 50, size - 84, where)
+
+
+def check_geometry_file(path: Path) -> None:
+    """Refuse, before open3d reads it, a mesh or cloud larger than the ceilings above or whose
+    header declares more elements than the ceilings or than the file can hold."""
+    size = path.stat().st_size
+    where = str(path)
+    if size > MAX_AVATAR_FILE_BYTES:
+        raise FormatError(f"{size / 2**20:.0f} MiB: larger than the {MAX_AVATAR_FILE_BYTES >> 20} MiB an avatar file "
+                          "may be", path=where)
+    with open(path, "rb") as f:
+        head = f.read(65536)
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        _check_ply(head, size, where)
+    elif suffix == ".off":
+        _check_off(head, size, where)
+    elif suffix == ".stl":
+        _check_stl(head, size, where)
+
+
 def read_geometry(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (V, 3) float64, faces (F, 3) int32; F = 0 for a point cloud) read by open3d."""
+    """(vertices (V, 3) float64, faces (F, 3) int32; F = 0 for a point cloud) read by open3d,
+    after ``check_geometry_file``; open3d's own warnings are silenced (the error says what failed)."""
     import open3d as o3d
 
     path = Path(path)
     if not path.is_file():
         raise UserInputError(f"no avatar file {path}")
+    check_geometry_file(path)
     verts, faces = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    if path.suffix.lower() in MESH_SUFFIXES:
-        mesh = o3d.io.read_triangle_mesh(str(path))
-        verts, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
-    if len(faces) == 0 and path.suffix.lower() in (".ply",) + CLOUD_SUFFIXES:
-        cloud = o3d.io.read_point_cloud(str(path))
-        verts = np.asarray(cloud.points, np.float64)
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        if path.suffix.lower() in MESH_SUFFIXES:
+            mesh = o3d.io.read_triangle_mesh(str(path))
+            verts, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int32)
+        if len(faces) == 0 and path.suffix.lower() in (".ply",) + CLOUD_SUFFIXES:
+            cloud = o3d.io.read_point_cloud(str(path))
+            verts = np.asarray(cloud.points, np.float64)
     if len(verts) < 100:
         raise FormatError(f"open3d read {len(verts)} points; an avatar needs at least 100", path=str(path))
+    if len(verts) > MAX_AVATAR_VERTICES or len(faces) > MAX_AVATAR_FACES:
+        raise FormatError(f"{len(verts)} vertices and {len(faces)} faces: more than an avatar may have "
+                          f"({MAX_AVATAR_VERTICES}, {MAX_AVATAR_FACES})", path=str(path))
+    if not np.isfinite(verts).all():
+        raise FormatError("vertices hold NaN or infinite values", path=str(path))
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(verts)):
+        raise FormatError("faces index vertices that do not exist", path=str(path))
     return verts, faces
 
 

@@ -157,18 +157,74 @@ def body_from_arrays(arrays: dict, source: str = "body") -> Body:
     return Body(**out, name=name, phenotype=phenotype)
 
 
-def _npz_arrays(source, where: str) -> dict:
-    try:
-        z = np.load(source, allow_pickle=False)
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            z = None
+#: Ceilings of a body file, checked on the arrays' headers before anything is read
+#: (docs/reliability.md): 128 MiB per array (a million vertices' weights are 88 MB), 256 MiB in
+#: all. A 200-byte file may declare a (2^40, 3) array; numpy would try to allocate 12 TiB.
+MAX_BODY_ARRAY_BYTES = 128 * 1024 * 1024
+MAX_BODY_BYTES = 256 * 1024 * 1024
+#: dtype kinds a body file may hold: floats, integers, booleans, unicode text (no objects, no bytes).
+_BODY_KINDS = "fiubU"
+
+
+def _member_header(zf: zipfile.ZipFile, member: str, where: str) -> int:
+    """Check one .npy member's header (version, dtype, declared shape) and return its data size in
+    bytes, without reading the data."""
+    with zf.open(member) as f:
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(f)
         else:
-            with z:
-                return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        # ValueError covers pickled (object) arrays, refused by allow_pickle=False.
+            raise FormatError(f"{member}: unsupported .npy version {version}", path=where)
+    if dtype.hasobject or dtype.kind not in _BODY_KINDS:
+        raise FormatError(f"{member}: dtype {dtype} is not allowed in a body file", path=where)
+    count = 1
+    for n in shape:
+        count *= int(n)
+    size = count * dtype.itemsize
+    if size > MAX_BODY_ARRAY_BYTES:
+        raise FormatError(f"{member} declares shape {tuple(shape)} {dtype} ({size / 2**20:.3g} MiB), more than "
+                          f"the {MAX_BODY_ARRAY_BYTES >> 20} MiB a body array may hold", path=where)
+    return size
+
+
+def _npz_arrays(source, where: str) -> dict:
+    """The body-file arrays of an .npz (a path or a binary file), each member's header checked
+    against the ceilings above before its data is read; members that are not body fields are
+    not read at all."""
+    try:
+        with zipfile.ZipFile(source) as zf:
+            names = {n[:-4]: n for n in zf.namelist() if n.endswith(".npy") and n[:-4] in _FIELDS}
+            total = sum(_member_header(zf, member, where) for member in names.values())
+            if total > MAX_BODY_BYTES:
+                raise FormatError(f"the arrays declare {total / 2**20:.3g} MiB, more than the "
+                                  f"{MAX_BODY_BYTES >> 20} MiB a body file may hold", path=where)
+            arrays = {}
+            for key, member in names.items():
+                with zf.open(member) as f:
+                    arrays[key] = np.lib.format.read_array(f, allow_pickle=False)
+            return arrays
+    except FormatError:
+        raise
+    except zipfile.BadZipFile:
+        head = b""
+        try:
+            if hasattr(source, "seek"):
+                source.seek(0)
+                head = source.read(6)
+            else:
+                with open(source, "rb") as f:
+                    head = f.read(6)
+        except OSError:
+            pass
+        if head == b"\x93NUMPY":
+            raise FormatError("a body file is an .npz archive, not a single .npy array", path=where) from None
+        raise FormatError("not a readable body file (not a zip archive)", path=where) from None
+    except (OSError, ValueError, EOFError, zipfile.LargeZipFile, NotImplementedError, RuntimeError) as exc:
+        # ValueError covers bad headers and pickled (object) arrays; NotImplementedError and
+        # RuntimeError unsupported or encrypted zip members.
         raise FormatError(f"not a readable body file ({type(exc).__name__}: {exc})", path=where) from None
-    raise FormatError("a body file is an .npz archive, not a single .npy array", path=where)
 
 
 def body_from_npz_bytes(data: bytes, source: str = "body.npz") -> Body:

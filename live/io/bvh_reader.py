@@ -29,6 +29,15 @@ UNIT_SCALES: dict[str, float] = {
 }
 #: Typical toe-to-fingertip path length of an adult, metres (see guess_scale).
 SPAN_M = 2.3
+#: Ceilings of a BVH file (docs/reliability.md), checked before the motion rows are parsed: the
+#: file size, joints, declared frames and values (frames x channels: 512 MB as float64), the
+#: frame time (10 kHz to 0.1 Hz) and the clip's length (a day).
+MAX_BVH_BYTES = 512 * 1024 * 1024
+MAX_BVH_JOINTS = 1000
+MAX_BVH_FRAMES = 500_000
+MAX_BVH_VALUES = 64_000_000
+MIN_FRAME_TIME_S, MAX_FRAME_TIME_S = 1e-4, 10.0
+MAX_CLIP_SECONDS = 24 * 3600.0
 
 
 def read_bvh(path: str | Path, *, scale: float | str = 1.0) -> BvhClip:
@@ -36,6 +45,8 @@ def read_bvh(path: str | Path, *, scale: float | str = 1.0) -> BvhClip:
     (metres per file unit), a key of UNIT_SCALES, or "auto" for ``guess_scale``."""
     path = Path(path)
     try:
+        if path.stat().st_size > MAX_BVH_BYTES:
+            raise FormatError(f"larger than the {MAX_BVH_BYTES >> 20} MiB a BVH file may be", path=str(path))
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError as exc:
         raise FormatError(f"cannot read BVH file: {exc.strerror or exc}", path=str(path)) from exc
@@ -51,7 +62,11 @@ def parse_bvh(text: str, *, name: str = "", path: str | None = None,
     head_end = m.end() if m else len(text)
     lines = text[:head_end].splitlines()
     skeleton, motion_line = _parse_hierarchy(lines, where)
+    if len(skeleton.names) > MAX_BVH_JOINTS:
+        raise FormatError(f"{len(skeleton.names)} joints, more than the {MAX_BVH_JOINTS} a BVH rig may have",
+                          path=where, line=motion_line + 1)
     frames, frame_time, data_line = _parse_motion_header(lines, motion_line, where)
+    _check_motion_size(frames, frame_time, skeleton.num_channels, where, motion_line + 2)
     channels = _parse_motion_rows(text[head_end:], data_line, frames, skeleton.num_channels,
                                   where)
     if isinstance(scale, str):
@@ -217,6 +232,22 @@ def _parse_motion_header(lines: list[str], motion_line: int, where: str) -> tupl
     if len(found) < 2:
         raise FormatError("truncated MOTION header", path=where, line=len(lines))
     return frames, frame_time, i
+
+
+def _check_motion_size(frames: int, frame_time: float, ncols: int, where: str, line: int) -> None:
+    """The declared motion against the ceilings above, before any row is parsed."""
+    if frames > MAX_BVH_FRAMES:
+        raise FormatError(f"declares {frames} frames, more than the {MAX_BVH_FRAMES} a BVH clip may have",
+                          path=where, line=line)
+    if frames * ncols > MAX_BVH_VALUES:
+        raise FormatError(f"declares {frames} frames of {ncols} channels, more than the {MAX_BVH_VALUES} values "
+                          "a BVH clip may hold", path=where, line=line)
+    if not MIN_FRAME_TIME_S <= frame_time <= MAX_FRAME_TIME_S:
+        raise FormatError(f"frame time {frame_time:g} s is outside {MIN_FRAME_TIME_S:g}..{MAX_FRAME_TIME_S:g} s",
+                          path=where, line=line + 1)
+    if frames * frame_time > MAX_CLIP_SECONDS:
+        raise FormatError(f"{frames} frames of {frame_time:g} s last {frames * frame_time:.0f} s, more than the "
+                          f"{MAX_CLIP_SECONDS:.0f} s a BVH clip may last", path=where, line=line + 1)
 
 
 def _parse_motion_rows(body: str, start: int, frames: int, ncols: int,

@@ -7,8 +7,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from live.core.errors import UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import quat_slerp
+
+#: Most frames ``resample`` makes (docs/reliability.md): 4.6 hours at 30 fps, about 0.6 GB
+#: while resampling. A clip's length times the new rate is checked before anything is allocated.
+MAX_RESAMPLED_FRAMES = 500_000
 
 
 @dataclass(frozen=True)
@@ -31,11 +36,17 @@ class Motion:
 
 
 def resample(motion: Motion, fps: float) -> Motion:
-    """The motion at another frame rate: rotations slerped, root linear, joints by FK."""
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps}")
+    """The motion at another frame rate: rotations slerped, root linear, joints by FK.
+    UserInputError (a ValueError) for a rate that is not a positive number or a result longer
+    than MAX_RESAMPLED_FRAMES."""
+    if not (np.isfinite(fps) and fps > 0):
+        raise UserInputError(f"fps must be positive, got {fps}")
     n = motion.num_frames
-    count = int(np.floor((n - 1) * fps / motion.fps + 1e-9)) + 1
+    frames = np.floor((n - 1) * fps / motion.fps + 1e-9) + 1
+    if not frames <= MAX_RESAMPLED_FRAMES:
+        raise UserInputError(f"{motion.name or 'the motion'} lasts {(n - 1) / motion.fps:.0f} s: at {fps:g} fps that "
+                             f"is {frames:.0f} frames, more than the {MAX_RESAMPLED_FRAMES} a clip may be resampled to")
+    count = int(frames)
     pos = np.arange(count) * (motion.fps / fps)  # in source frames
     i0 = np.minimum(np.floor(pos).astype(np.int64), n - 1)
     i1 = np.minimum(i0 + 1, n - 1)
