@@ -1,5 +1,10 @@
 """OAK-D depth camera driver (depthai 3.x): device stereo depth -> DepthFrame, device IMU -> MocapPacket.
 
+The IMU streams as ``<name>_imu``: the accelerometer and gyro in the depth camera's axes (the
+reports depthai aligns on the device, ``imu_reports``, with the calibration's fine correction,
+``aligned_imu_correction``), the BNO08x's fused orientation as the chip's own. The skeleton stage
+takes world up from its still periods (live.core.gravity).
+
 Clocks: depthai stamps every message twice. ``getTimestampDevice()`` is the camera's own clock;
 ``getTimestamp()`` is that instant already converted by depthai's time sync to the host's
 steady clock (``dai.Clock.now()``). On Linux that clock is CLOCK_MONOTONIC, the same one as
@@ -25,6 +30,7 @@ import numpy as np
 from drivers.oak_settings import OakSettings, apply_stereo_config, oak_settings, stereo_config
 from live.core.errors import DeviceError, DeviceNotFoundError
 from live.core.frames import DepthFrame, MocapPacket
+from live.core.gravity import CAMERA_IMU_SUFFIX
 from live.core.protocols import StreamInfo
 from live.core.rotations import matrix_to_quat, quat_multiply
 
@@ -113,6 +119,40 @@ def extrinsics_from_calibration(calib, src, dst) -> np.ndarray:
     return np.asarray(m, dtype=np.float64).reshape(4, 4)
 
 
+#: A calibrated IMU -> camera rotation smaller than this is a fine correction (mounting tolerance);
+#: a larger one is the sensor's own mounting on the board, which the device-aligned reports undo.
+MAX_IMU_CORRECTION_DEG = 20.0
+
+
+def imu_reports(dai) -> tuple[Any, Any, str]:
+    """(accelerometer report, gyroscope report, their name) to enable on the IMU node.
+
+    Both come aligned on the device to the camera axes convention (+x right, +y down, +z
+    forward): depthai >= 3.6 has ACCELEROMETER_CALIBRATED / GYROSCOPE_CALIBRATED (also
+    bias-corrected with the factory calibration; its RAW reports are in the chip's own axes);
+    older 3.x firmware delivered the RAW reports aligned the same way.
+    """
+    sensors = dai.IMUSensor
+    if hasattr(sensors, "ACCELEROMETER_CALIBRATED") and hasattr(sensors, "GYROSCOPE_CALIBRATED"):
+        return sensors.ACCELEROMETER_CALIBRATED, sensors.GYROSCOPE_CALIBRATED, "calibrated"
+    return sensors.ACCELEROMETER_RAW, sensors.GYROSCOPE_RAW, "raw"
+
+
+def rotation_angle_deg(r: np.ndarray) -> float:
+    """The angle (degrees) of a 3x3 rotation matrix."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def aligned_imu_correction(imu_to_camera: np.ndarray | None) -> np.ndarray | None:
+    """What turns the device-aligned IMU vectors (``imu_reports``) into the depth camera's axes:
+    the calibration's IMU -> camera rotation when it is a small correction, else None (a large one
+    is the chip's mounting, already undone on the device; applying it again would turn gravity by
+    a right angle or more)."""
+    if imu_to_camera is None or rotation_angle_deg(imu_to_camera) > MAX_IMU_CORRECTION_DEG:
+        return None
+    return imu_to_camera
+
+
 def imu_to_camera_rotation(calib, socket) -> np.ndarray | None:
     """(3, 3) rotation taking IMU-frame vectors to the camera frame, or None when the
     calibration does not link the IMU to that camera."""
@@ -165,16 +205,18 @@ def depth_frame_from_pointcloud(pcd, intrinsics: np.ndarray | None = None, camer
 
 
 def mocap_packets_from_imu(imu_data, clock_offset_ns: int = 0, device: str = "oak_imu",
-                           imu_to_camera: np.ndarray | None = None, with_rotation: bool = True) -> list[MocapPacket]:
+                           imu_to_camera: np.ndarray | None = None, with_rotation: bool = True,
+                           rotate_orientation: bool = True) -> list[MocapPacket]:
     """A depthai IMUData -> one MocapPacket per IMU packet (sensor id 0).
 
     acc (1, 3) m/s^2 and gyro (1, 3) rad/s; quats (1, 4) (w, x, y, z) from the rotation vector
     when ``with_rotation`` (the BNO085 has one, the BMI270 does not: quats stay None). With
-    ``imu_to_camera`` (3, 3) the vectors are expressed in that camera's axes and the orientation
-    becomes the camera's. t_ns is the accelerometer's timestamp, counter its sequence number.
+    ``imu_to_camera`` (3, 3) the vectors are expressed in that camera's axes and, with
+    ``rotate_orientation``, the orientation becomes the camera's (else it stays the chip's own).
+    t_ns is the accelerometer's timestamp, counter its sequence number.
     """
     r = None if imu_to_camera is None else np.asarray(imu_to_camera, dtype=np.float64)
-    q_cam_in_imu = None if r is None else matrix_to_quat(r.T)
+    q_cam_in_imu = None if r is None or not rotate_orientation else matrix_to_quat(r.T)
     out = []
     for p in imu_data.packets:
         a, g = p.acceleroMeter, p.gyroscope
@@ -187,7 +229,7 @@ def mocap_packets_from_imu(imu_data, clock_offset_ns: int = 0, device: str = "oa
             quats = q[None] if np.any(q != 0.0) else None
         if r is not None:
             acc, gyro = acc @ r.T, gyro @ r.T
-            if quats is not None:
+            if quats is not None and q_cam_in_imu is not None:
                 quats = quat_multiply(quats, q_cam_in_imu[None])
         out.append(MocapPacket(
             t_ns=device_to_host_ns(a.getTimestamp(), clock_offset_ns), device=device,
@@ -424,13 +466,19 @@ class _DepthaiSession:
         imu_name = dev.getConnectedIMU()
         self._imu_q = None
         self._imu_rotation = not imu_name.upper().startswith("BMI")
-        self._imu_r = imu_to_camera_rotation(calib, conf["depth_socket"])
+        # The reports come aligned to the camera axes; the calibration adds at most a fine correction.
+        calibrated_r = imu_to_camera_rotation(calib, conf["depth_socket"])
+        self._imu_r = aligned_imu_correction(calibrated_r)
+        acc_report, gyro_report, self._imu_reports = imu_reports(dai)
         if conf["imu_rate_hz"] and imu_name and imu_name.upper() != "NONE":
             imu = pipeline.create(dai.node.IMU)
-            sensors = [dai.IMUSensor.ACCELEROMETER_RAW, dai.IMUSensor.GYROSCOPE_RAW]
+            rate = int(conf["imu_rate_hz"])
+            sensors = [acc_report]
             if self._imu_rotation:
                 sensors.append(dai.IMUSensor.ROTATION_VECTOR)
-            imu.enableIMUSensor(sensors, int(conf["imu_rate_hz"]))
+            imu.enableIMUSensor(sensors, rate)
+            # The BNO08x gives calibrated rotation rates up to 100 Hz; telling still from moving needs no more.
+            imu.enableIMUSensor(gyro_report, min(rate, 100))
             imu.setBatchReportThreshold(1)
             imu.setMaxBatchReports(10)
             self._imu_q = imu.out.createOutputQueue(maxSize=50, blocking=False)
@@ -446,9 +494,14 @@ class _DepthaiSession:
         }
         self._streams = [StreamInfo(self._name, "depth", meta)]
         if self._imu_q is not None:
-            self._streams.append(StreamInfo(f"{self._name}_imu", "imu", {
+            # What a replay needs to judge (or redo) the axes: the reports, the correction applied
+            # and the calibration's own IMU -> camera rotation.
+            self._streams.append(StreamInfo(f"{self._name}{CAMERA_IMU_SUFFIX}", "imu", {
                 "imu": imu_name, "rate_hz": conf["imu_rate_hz"], "orientation": self._imu_rotation,
-                "frame": "camera" if self._imu_r is not None else "imu"}))
+                "orientation_frame": "imu", "frame": "camera", "reports": self._imu_reports,
+                "imu_to_camera_applied": None if self._imu_r is None else self._imu_r.tolist(),
+                "calibration_imu_to_camera": None if calibrated_r is None else calibrated_r.tolist(),
+                "depthai": getattr(dai, "__version__", "")}))
 
     def streams(self) -> list[StreamInfo]:
         return list(self._streams)
@@ -460,8 +513,8 @@ class _DepthaiSession:
                 raise DeviceError(f"OAK {self._name}: pipeline stopped")
             if self._imu_q is not None:
                 for msg in self._imu_q.tryGetAll():
-                    out.extend(mocap_packets_from_imu(msg, self._offset, f"{self._name}_imu",
-                                                      self._imu_r, self._imu_rotation))
+                    out.extend(mocap_packets_from_imu(msg, self._offset, f"{self._name}{CAMERA_IMU_SUFFIX}",
+                                                      self._imu_r, self._imu_rotation, rotate_orientation=False))
             msg = self._depth_q.get(datetime.timedelta(seconds=timeout_s))
         except DeviceError:
             raise

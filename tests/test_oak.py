@@ -261,6 +261,28 @@ def test_imu_packets_in_camera_axes(calibration):
     np.testing.assert_allclose(quat_to_matrix(p.quats[0].astype(np.float64)), quat_to_matrix(q) @ r.T, atol=1e-6)
 
 
+def test_device_aligned_imu_reports_and_the_fine_correction(calibration):
+    from drivers.oak import aligned_imu_correction, imu_reports
+
+    acc, gyro, name = imu_reports(dai)
+    assert name == "calibrated"  # depthai >= 3.6: aligned to the camera axes on the device
+    assert (acc, gyro) == (dai.IMUSensor.ACCELEROMETER_CALIBRATED, dai.IMUSensor.GYROSCOPE_CALIBRATED)
+    # The fixture's 90 degree turn is the chip's mounting, which the aligned reports already undo.
+    assert aligned_imu_correction(imu_to_camera_rotation(calibration, "CAM_C")) is None
+    small = quat_to_matrix(np.array([np.cos(0.02), np.sin(0.02), 0.0, 0.0]))  # 2.3 degrees
+    np.testing.assert_array_equal(aligned_imu_correction(small), small)
+    assert aligned_imu_correction(None) is None
+
+
+def test_imu_orientation_can_stay_the_chips_own(calibration):
+    r = imu_to_camera_rotation(calibration, "CAM_C")
+    q = np.array([np.cos(0.25), 0.0, np.sin(0.25), 0.0])
+    (p,) = mocap_packets_from_imu(_imu_data((0.1, 9.8, 0.2), (0.0, 0.0, 1.0), q, t_s=1, seq=0),
+                                  imu_to_camera=r, rotate_orientation=False)
+    np.testing.assert_allclose(p.acc[0], r @ [0.1, 9.8, 0.2], rtol=1e-6)
+    np.testing.assert_allclose(p.quats, [q], atol=1e-6)
+
+
 def test_imu_without_rotation_vector_has_no_quats():
     data = _imu_data((0.0, 9.8, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), t_s=1, seq=0)
     (p,) = mocap_packets_from_imu(data)
