@@ -8,6 +8,7 @@ import signal
 import socket
 import struct
 import subprocess
+import time
 import urllib.request
 from pathlib import Path
 
@@ -23,7 +24,17 @@ from live.outputs.render import bone_mesh
 
 rr = pytest.importorskip("rerun", reason="rerun-sdk (the viewer extra) is not installed")
 
-from live.outputs.viewer import LEFT_RGB, RIGHT_RGB, RerunSink, confidence_rgb, rerun_binary  # noqa: E402
+from live.outputs.viewer import (  # noqa: E402
+    LEFT_RGB,
+    LOOPBACK,
+    RIGHT_RGB,
+    RerunSink,
+    ViewerSpec,
+    confidence_rgb,
+    parse_viewer_spec,
+    rerun_binary,
+    spawn_command,
+)
 
 
 def _rerun_cli() -> str:
@@ -123,7 +134,9 @@ def web_sink():
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
-def test_web_mode_serves_the_viewer_on_localhost_only(web_sink):
+def test_web_mode_serves_the_viewer_on_localhost_only(capsys, web_sink):
+    assert f"(this machine only): open {web_sink.url}" in capsys.readouterr().err
+    assert web_sink.url.startswith("http://127.0.0.1:")
     results, _ = _results(2)
     for r in results:
         web_sink.send(r)
@@ -140,6 +153,65 @@ def test_web_mode_serves_the_viewer_on_localhost_only(web_sink):
     assert proc.poll() is not None  # the viewer process this sink started is gone
     with pytest.raises(ProcessLookupError):
         os.killpg(proc.pid, 0)  # and so is its whole process group
+
+
+@pytest.mark.parametrize("text, spec", [
+    ("spawn", ViewerSpec("spawn", bind=LOOPBACK)), ("web", ViewerSpec("web", bind=LOOPBACK)),
+    ("web:0.0.0.0", ViewerSpec("web", bind="0.0.0.0")), ("web:192.168.1.20", ViewerSpec("web", bind="192.168.1.20")),
+    ("web:::", ViewerSpec("web", bind="::")), ("save:x/run.rrd", ViewerSpec("save", path=Path("x/run.rrd"))),
+])
+def test_viewer_specs_listen_on_loopback_unless_told(text, spec):
+    assert parse_viewer_spec(text) == spec
+
+
+@pytest.mark.parametrize("text", ["cloud", "save:", "web:example.com", "web:999.1.1.1", "spawn:localhost:9"])
+def test_bad_viewer_specs_are_user_errors(text):
+    with pytest.raises(UserInputError):
+        parse_viewer_spec(text)
+
+
+def test_spawned_viewer_listens_on_loopback_only():
+    cmd = spawn_command(9876)
+    assert cmd[cmd.index("--bind") + 1] == "127.0.0.1" and cmd[cmd.index("--port") + 1] == "9876"
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
+def test_spawn_mode_logs_into_a_viewer_already_listening_on_its_port():
+    # A native viewer needs a display; a gRPC server started the same way stands in for it.
+    port = _free_port()
+    proc = subprocess.Popen([_rerun_cli(), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 15
+        while not _listening_addresses(port) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # waiting for another process to listen: nothing to wait on but time
+        assert _listening_addresses(port), "the rerun gRPC server did not start"
+        sink = RerunSink("spawn", grpc_port=port)
+        results, _ = _results(2)
+        for r in results:
+            sink.send(r)
+        sink.close()
+        assert sink.errors == 0 and sink.frames == 2
+        assert _listening_addresses(port) == {"127.0.0.1"}
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
+def test_web_mode_serves_the_local_network_when_asked(capsys):
+    _rerun_cli()
+    web_port, grpc_port = _free_port(), _free_port()
+    sink = RerunSink("web", web_port=web_port, grpc_port=grpc_port, bind="0.0.0.0")
+    try:
+        for port in (web_port, grpc_port):
+            assert _listening_addresses(port) == {"0.0.0.0"}
+        err = capsys.readouterr().err
+        assert f"open {sink.url}" in err and "listening on 0.0.0.0" in err
+        with urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10) as page:
+            assert page.status == 200
+    finally:
+        sink.close()
 
 
 _BROWSER = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")

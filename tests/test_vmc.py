@@ -197,7 +197,7 @@ def test_replay_at_full_speed_delivers_every_frame_exactly(marionette):
             sink.send(_result(i, rot[i], root[i], conf=0.1 if i == 7 else 0.9))
         marionette.wait_for(start + 50)  # flow control: a burst never outruns the socket buffer
     sink.close()
-    assert sink.stats() == {"sent": n, "coalesced": 0, "skipped": 0, "errors": 0}
+    assert sink.stats() == {"sent": n, "coalesced": 0, "skipped": 0, "refused": 0, "errors": 0}
     assert len(marionette.poses) == n
     for i, (pose, ok) in enumerate(marionette.poses):
         assert ok[:3] == (1, 3, 0)
@@ -233,6 +233,34 @@ def test_send_never_raises_and_counts_problems(marionette):
     sink.close()
     sink.send(FrameResult(t_ns=3))  # after close: ignored
     assert sink.skipped == 1 and sink.errors == 1 and sink.sent == 0
+
+
+def test_socket_is_connected_to_its_target_and_hears_no_one_else(marionette):
+    sink = VmcSink("127.0.0.1", marionette.port, rate_hz=None)
+    rot, root = _motion(1)
+    sink.send(_result(0, rot[0], root[0]))
+    local = sink._sock.getsockname()
+    assert sink._sock.getpeername() == ("127.0.0.1", marionette.port)
+    assert local[0] == "127.0.0.1"  # bound to the interface that routes to the target, not 0.0.0.0
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        stranger.sendto(b"/VMC/Ext/hello", local)
+        stranger.sendto(b"/VMC/Ext/hello", local)
+    with pytest.raises(BlockingIOError):  # the kernel dropped the stranger's datagrams
+        sink._sock.recv(100, socket.MSG_DONTWAIT)
+    sink.close()
+    assert sink.sent == 1 and sink.errors == 0
+
+
+def test_no_receiver_is_counted_as_refused_not_as_errors():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # a port nobody listens on once this socket is closed
+    sink = VmcSink("127.0.0.1", port, rate_hz=None)
+    rot, root = _motion(5)
+    for i in range(5):
+        sink.send(_result(i, rot[i], root[i]))
+    sink.close()
+    assert sink.errors == 0 and sink.refused >= 1 and sink.sent + sink.refused == 5
 
 
 @pytest.mark.parametrize("kwargs", [{"port": 0}, {"port": 70000}, {"rate_hz": 0}, {"host": ""},

@@ -77,10 +77,7 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if opts.viewer:
         from live.outputs.viewer import RerunSink
 
-        mode, _, path = opts.viewer.partition(":")
-        if mode not in ("spawn", "web", "save"):
-            raise UserInputError("--viewer wants spawn, web or save:FILE.rrd")
-        sinks.append(RerunSink(mode=mode, path=path or None, avatar_faces=None if body is None else body.faces))
+        sinks.append(RerunSink.from_spec(opts.viewer, avatar_faces=None if body is None else body.faces))
     if opts.video:
         from live.outputs.render import VideoSink
 

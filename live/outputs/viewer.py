@@ -12,9 +12,15 @@ clock) and ``frame``:
     world/avatar/mesh          its skinned mesh (Mesh3D), when AvatarPose.vertices and faces exist
     latency/<stage>            per-stage milliseconds (Scalars)
 
-Modes: "spawn" starts the native viewer, "web" serves the web viewer and its gRPC proxy on
-127.0.0.1 only (a `rerun --serve-web --bind 127.0.0.1` process this sink owns and stops at
-close), "save" writes an .rrd file to ``path``.
+Modes (``--viewer spawn|web[:ADDR]|save:FILE.rrd``, parsed by ``parse_viewer_spec``):
+
+- "spawn" starts the native viewer, listening for this sink on 127.0.0.1 only (``rerun --bind
+  127.0.0.1``; Rerun's own spawn listens on every interface), or logs into a viewer already
+  listening on that port. The viewer stays open after the run;
+- "web" serves the web viewer and its gRPC proxy on 127.0.0.1 (a `rerun --serve-web --bind ...`
+  process this sink owns and stops at close) and prints the URL to open; "web:0.0.0.0" serves
+  every interface (a phone or laptop on the local network), "web:ADDR" one address;
+- "save" writes an .rrd file to ``path``.
 """
 
 from __future__ import annotations
@@ -25,7 +31,9 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +47,9 @@ from live.outputs.raster import vertex_normals
 log = logging.getLogger(__name__)
 
 MODES = ("spawn", "web", "save")
+#: Where the viewer listens unless the user names an address.
+LOOPBACK = "127.0.0.1"
+_WILDCARDS = ("0.0.0.0", "::", "[::]")
 _BONE_PAIRS = np.array(BONES, dtype=np.int64)
 # Bone colours (RGB): the performer's left warm, right cool, centre light grey.
 LEFT_RGB, RIGHT_RGB, CENTRE_RGB = (255, 160, 60), (60, 160, 255), (220, 220, 220)
@@ -81,17 +92,74 @@ def rerun_binary() -> str:
     return found
 
 
-def _wait_for_port(port: int, proc: subprocess.Popen, timeout_s: float) -> None:
+@dataclass(frozen=True)
+class ViewerSpec:
+    """A parsed ``--viewer`` value: mode, the .rrd path (save) or the address to listen on."""
+
+    mode: str
+    path: Path | None = None
+    bind: str = LOOPBACK
+
+
+def parse_viewer_spec(text: str) -> ViewerSpec:
+    """``spawn`` | ``web`` | ``web:ADDR`` | ``spawn:ADDR`` | ``save:FILE.rrd`` -> ViewerSpec."""
+    mode, _, rest = text.partition(":")
+    if mode not in MODES or (mode == "save" and not rest):
+        raise UserInputError("--viewer wants spawn, web, web:ADDR (e.g. web:0.0.0.0 to serve the local network) "
+                             "or save:FILE.rrd")
+    if mode == "save":
+        return ViewerSpec(mode, path=Path(rest))
+    bind = rest or LOOPBACK
+    if bind not in _WILDCARDS:
+        try:
+            socket.getaddrinfo(bind.strip("[]"), None, type=socket.SOCK_STREAM, flags=socket.AI_NUMERICHOST)
+        except socket.gaierror:
+            raise UserInputError(f"--viewer {mode}:ADDR wants an IP address to listen on, not {bind!r}") from None
+    return ViewerSpec(mode, bind=bind)
+
+
+def connect_host(bind: str) -> str:
+    """The address this process reaches a server on that listens on ``bind``."""
+    return LOOPBACK if bind in _WILDCARDS else bind.strip("[]")
+
+
+def url_host(bind: str) -> str:
+    """The host name to put in a URL for other machines: the address of the interface that routes
+    to the network for a wildcard bind (no packet is sent), else the bound address."""
+    if bind not in _WILDCARDS:
+        host = bind.strip("[]")
+        return f"[{host}]" if ":" in host else host
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.connect(("192.0.2.1", 9))  # TEST-NET-1: routing only, nothing is sent
+            return s.getsockname()[0]
+    except OSError:
+        return socket.gethostname()
+
+
+def _listening(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+def _wait_for_port(host: str, port: int, proc: subprocess.Popen, timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise UserInputError(f"the rerun web viewer exited at start (code {proc.returncode})")
-        try:
-            with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-                return
-        except OSError:
-            time.sleep(0.05)  # waiting for another process to listen: nothing to wait on but time
-    raise UserInputError(f"the rerun web viewer did not listen on 127.0.0.1:{port} within {timeout_s:.0f} s")
+            raise UserInputError(f"the rerun {what} exited at start (code {proc.returncode})")
+        if _listening(host, port):
+            return
+        time.sleep(0.05)  # waiting for another process to listen: nothing to wait on but time
+    raise UserInputError(f"the rerun {what} did not listen on {host}:{port} within {timeout_s:.0f} s")
+
+
+def spawn_command(port: int, bind: str = LOOPBACK) -> list[str]:
+    """The native viewer's command line: what ``rerun.spawn`` runs, plus ``--bind``."""
+    return [rerun_binary(), "--bind", bind, "--port", str(port), "--expect-data-soon",
+            "--memory-limit", "75%", "--server-memory-limit", "1GiB"]
 
 
 class RerunSink:
@@ -111,6 +179,7 @@ class RerunSink:
         web_port: int = 9090,
         grpc_port: int = 9876,
         application_id: str = "livecap",
+        bind: str = LOOPBACK,
     ) -> None:
         if mode not in MODES:
             raise UserInputError(f"unknown viewer mode {mode!r}: use one of {', '.join(MODES)}")
@@ -127,33 +196,55 @@ class RerunSink:
         self.frames = 0
         self.errors = 0
         self.url: str | None = None
+        self.bind = bind
         self._rec = rr.RecordingStream(application_id)
         if mode == "save":
             if not self.path.parent.exists():
                 raise UserInputError(f"folder {self.path.parent} does not exist")
             self._rec.save(self.path)
         elif mode == "spawn":
-            self._rec.spawn(connect=True)
+            self._spawn_native(grpc_port, bind)
         else:
-            self._start_web(web_port, grpc_port)
+            self._start_web(web_port, grpc_port, bind)
         self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)
 
-    def _start_web(self, web_port: int, grpc_port: int) -> None:
+    @classmethod
+    def from_spec(cls, text: str, **kwargs) -> RerunSink:
+        """A sink for a ``--viewer`` value (``parse_viewer_spec``)."""
+        spec = parse_viewer_spec(text)
+        return cls(spec.mode, path=spec.path, bind=spec.bind, **kwargs)
+
+    def _spawn_native(self, port: int, bind: str) -> None:
+        # rerun.spawn() starts `rerun --port N`, which listens on every interface: anyone on the
+        # network could log into the viewer. Started here with --bind; the viewer outlives the run
+        # (its own session, not stopped at close), as Rerun's spawn does.
+        host = connect_host(bind)
+        if not _listening(host, port):
+            env = dict(os.environ, RERUN_APP_ONLY="true")
+            proc = subprocess.Popen(spawn_command(port, bind), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL, start_new_session=True, env=env)
+            _wait_for_port(host, port, proc, timeout_s=15.0, what="viewer")
+        self._rec.connect_grpc(f"rerun+http://{host}:{port}/proxy")
+
+    def _start_web(self, web_port: int, grpc_port: int, bind: str) -> None:
         # The SDK's own serve_grpc/serve_web_viewer listen on every interface; the CLI takes
-        # --bind, so the viewer is reachable from this machine only.
-        cmd = [rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc_port),
+        # --bind, so the viewer is reachable from this machine only unless the user names an address.
+        cmd = [rerun_binary(), "--serve-web", "--bind", bind, "--port", str(grpc_port),
                "--web-viewer-port", str(web_port)]
         # Its own process group, so that stopping it also stops anything it started.
         self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                       start_new_session=True)
+        host = connect_host(bind)
         try:
-            _wait_for_port(grpc_port, self._proc, timeout_s=15.0)
+            _wait_for_port(host, grpc_port, self._proc, timeout_s=15.0, what="web viewer")
         except UserInputError:
             self._stop_web()
             raise
-        self._rec.connect_grpc(f"rerun+http://127.0.0.1:{grpc_port}/proxy")
-        self.url = f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp://127.0.0.1:{grpc_port}/proxy"
-        log.info("rerun web viewer: %s", self.url)
+        self._rec.connect_grpc(f"rerun+http://{host}:{grpc_port}/proxy")
+        public = url_host(bind)
+        self.url = f"http://{public}:{web_port}/?url=rerun%2Bhttp://{public}:{grpc_port}/proxy"
+        where = "this machine only" if bind == LOOPBACK else f"listening on {bind}"
+        print(f"livecap: web viewer ({where}): open {self.url}", file=sys.stderr, flush=True)
 
     def _stop_web(self) -> None:
         if self._proc is None:

@@ -15,7 +15,10 @@ offset from the parent bone. Like VirtualMotionCapture, the root transform stays
 and the body's motion travels in the Hips bone: its position is the pelvis world position.
 
 The sink is a UDP client only: it never binds a port, and sends only to the host and port it is
-given. Shapes: root (3,), rotations (22, 4) (w, x, y, z), rest_joints (22, 3).
+given. Its socket is connected to that address: the kernel picks the local interface that routes
+there (127.0.0.1 for a local app) and drops datagrams from anyone else, so nothing reaches the
+process from the network. A receiver that is not running yet answers with ICMP "port
+unreachable"; those refusals are counted (``refused``), not treated as errors. Shapes: root (3,), rotations (22, 4) (w, x, y, z), rest_joints (22, 3).
 """
 
 from __future__ import annotations
@@ -170,6 +173,11 @@ class VmcSink:
         except OSError as e:  # an unresolvable host name
             raise UserInputError(f"cannot send VMC to {host}:{port}: {e}") from e
         self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            self._sock.connect(self._address)
+        except OSError as e:  # e.g. no route to the host
+            self._sock.close()
+            raise UserInputError(f"cannot send VMC to {host}:{port}: {e}") from e
         self.host, self.port = host, int(port)
         self._rest = rest.astype(np.float64)
         self._period = None if rate_hz is None else 1.0 / float(rate_hz)
@@ -182,6 +190,7 @@ class VmcSink:
         self.sent = 0        # bundles sent
         self.coalesced = 0   # frames replaced by a newer one before their turn
         self.skipped = 0     # frames without an avatar pose
+        self.refused = 0     # bundles the receiver's host refused (no app listening yet)
         self.errors = 0
 
     def send(self, result: FrameResult) -> None:
@@ -223,7 +232,8 @@ class VmcSink:
             self._sock.close()
 
     def stats(self) -> dict[str, int]:
-        return {"sent": self.sent, "coalesced": self.coalesced, "skipped": self.skipped, "errors": self.errors}
+        return {"sent": self.sent, "coalesced": self.coalesced, "skipped": self.skipped, "refused": self.refused,
+                "errors": self.errors}
 
     def __enter__(self) -> VmcSink:
         return self
@@ -241,7 +251,13 @@ class VmcSink:
             tracking_ok = float(np.mean(result.skeleton.confidence)) >= self._min_conf
         avatar = result.avatar
         msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok)
-        self._sock.sendto(encode_bundle(msgs), self._address)
+        try:
+            self._sock.send(encode_bundle(msgs))
+        except ConnectionRefusedError:
+            # The ICMP answer to an earlier bundle: nobody listens there (yet). VMC apps start
+            # and stop independently of the performer; the next bundles go out as usual.
+            self.refused += 1
+            return
         self.sent += 1
 
     def _error(self, e: Exception) -> None:
