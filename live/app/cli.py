@@ -11,7 +11,7 @@ from pathlib import Path
 from live import __version__
 from live.app import arguments as arg
 from live.core.errors import LivecapError
-from live.core.text import printable
+from live.core.text import PrintableWriter, printable
 
 EXIT_USER_ERROR = 2
 LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother temporal model, "
@@ -247,10 +247,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USER_ERROR
+
     def fail(message: str, status: int = EXIT_USER_ERROR) -> int:
         print(f"livecap {args.command}: error: {printable(message, max_chars=600)}", file=sys.stderr)
         return status
 
+    # What a command prints can quote a file (stream names, metadata): never its escape sequences.
+    stdout, stderr = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = PrintableWriter(stdout), PrintableWriter(stderr, keep="\n\t\r")
     try:
         arg.check_outputs(args.command, args)
         return int(_command(args.command)(args) or 0)
@@ -267,6 +271,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"livecap {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        sys.stdout, sys.stderr = stdout, stderr
 
 
 if __name__ == "__main__":

@@ -44,6 +44,31 @@ def printable(text: object, max_chars: int = 300) -> str:
     return out
 
 
+def printable_text(text: str, keep: str = "\n\t") -> str:
+    """``text`` with every control or formatting character escaped as in ``printable``, except
+    those in ``keep`` (line feeds and tabs: the layout of a command's output), and never cut."""
+    return "".join(_escape(c) if c not in keep and unicodedata.category(c) in UNPRINTABLE_CATEGORIES else c
+                   for c in text)
+
+
+class PrintableWriter:
+    """A text stream that writes everything through ``printable_text``: a command's output can
+    quote stream names and metadata from a file without sending its escape sequences to the
+    terminal. ``keep``: the control characters let through (a progress bar on stderr needs "\r").
+    Everything else (flush, isatty, encoding, buffer) is the wrapped stream's."""
+
+    def __init__(self, stream, keep: str = "\n\t"):
+        self._stream = stream
+        self._keep = keep
+
+    def write(self, text: str) -> int:
+        self._stream.write(printable_text(text, self._keep))
+        return len(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
 def safe_filename(name: str, max_chars: int = MAX_FILENAME_CHARS) -> str:
     """A file name (one path component) for ``name``, e.g. a stream name from a session.
 
