@@ -1,6 +1,7 @@
 """Decoder throughput: MTData2 frames/s through XbusParser (goal >= 50k frames/s), and text
-lines/s through LineParser, fed in 4 KiB reads like a busy serial port. Median of 5 runs.
-Then end to end: a SimulatedSuit in as-fast-as-read mode on a pty -> SerialSource, records/s
+lines/s through LineParser, fed in 4 KiB reads like a busy serial port. Median of 5 runs, with
+the plausibility checks (drivers/plausibility.py, the default) and without them
+(``plausibility=None``), and the ratio of the two medians. Then end to end: a SimulatedSuit in as-fast-as-read mode on a pty -> SerialSource, records/s
 (both sides in one process, so this is a lower bound; median of 3).
 
 Usage: python benchmarks/bench_xbus.py [--frames 20000]
@@ -22,38 +23,54 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.serial_source import SerialSource  # noqa: E402
 from drivers.text_lines import LineParser, encode_line  # noqa: E402
 from drivers.xbus import MID_MTDATA2, XbusParser, encode_message, encode_mtdata2  # noqa: E402
-from live.core.rotations import quat_normalize  # noqa: E402
+from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize  # noqa: E402
 from sim.imu_device import SimulatedSuit  # noqa: E402
 from sim.imu_model import random_smooth_motion  # noqa: E402
 
 CHUNK = 4096
 
 
+SENSORS = 15
+
+
+def suit_orientations(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 4): sample i is sensor 1 + i % 15 at step i // 15 (100 Hz), each sensor turning at
+    5 rad/s about its own axis, so every sample passes the plausibility checks."""
+    axis = rng.normal(size=(SENSORS, 3))
+    axis *= (5.0 / np.linalg.norm(axis, axis=1))[:, None]
+    step = np.arange(n) // SENSORS
+    turn = quat_from_axis_angle(axis[np.arange(n) % SENSORS] * (step / 100.0)[:, None])
+    return quat_multiply(quat_normalize(rng.normal(size=(SENSORS, 4)))[np.arange(n) % SENSORS], turn)
+
+
 def xbus_stream(n: int, rng: np.random.Generator, **fields) -> bytes:
-    q = quat_normalize(rng.normal(size=(n, 4)))
+    q = suit_orientations(n, rng)
     extra = {k: rng.normal(size=3) for k in fields.pop("vectors", ())}
-    return b"".join(encode_message(1 + i % 15, MID_MTDATA2, encode_mtdata2(
-        quat=q[i], counter=i, sample_time_fine=100 * i, **extra, **fields)) for i in range(n))
+    return b"".join(encode_message(1 + i % SENSORS, MID_MTDATA2, encode_mtdata2(
+        quat=q[i], counter=i // SENSORS, sample_time_fine=100 * (i // SENSORS), **extra, **fields))
+        for i in range(n))
 
 
 def lines_stream(n: int, rng: np.random.Generator, fmt: str) -> bytes:
-    q = quat_normalize(rng.normal(size=(n, 4)))
+    q = suit_orientations(n, rng)
     acc = rng.normal(size=(n, 3))
-    return b"".join(encode_line(1 + i % 15, 1000 * i, q[i], acc=acc[i], fmt=fmt, checksum=True)
-                    for i in range(n))
+    return b"".join(encode_line(1 + i % SENSORS, 10_000 * (i // SENSORS), q[i], acc=acc[i], fmt=fmt,
+                                checksum=True) for i in range(n))
 
 
-def rate(make_parser, stream: bytes, n: int, runs: int = 5) -> tuple[float, int]:
-    times = []
+def rate(make_parser, stream: bytes, n: int, runs: int = 5) -> tuple[float, float, int]:
+    """Records/s with the checks on and off (runs interleaved, so load changes hit both)."""
+    times: dict[bool, list[float]] = {True: [], False: []}
     for _ in range(runs):
-        parser = make_parser()
-        t0 = time.perf_counter()
-        got = 0
-        for i in range(0, len(stream), CHUNK):
-            got += len(parser.feed(stream[i:i + CHUNK]))
-        times.append(time.perf_counter() - t0)
-        assert got == n, (got, n)
-    return n / statistics.median(times), len(stream) // n
+        for checks in (True, False):
+            parser = make_parser() if checks else make_parser(plausibility=None)
+            t0 = time.perf_counter()
+            got = 0
+            for i in range(0, len(stream), CHUNK):
+                got += len(parser.feed(stream[i:i + CHUNK]))
+            times[checks].append(time.perf_counter() - t0)
+            assert got == n, (got, n, parser.counters)
+    return n / statistics.median(times[True]), n / statistics.median(times[False]), len(stream) // n
 
 
 def end_to_end(protocol: str, runs: int = 3) -> float:
@@ -91,10 +108,10 @@ def main() -> None:
         "lines csv + acc + checksum": (LineParser, lines_stream(n, rng, "csv")),
         "lines json + acc + checksum": (LineParser, lines_stream(n, rng, "json")),
     }
-    print(f"{'case':36s} {'bytes/rec':>9s} {'records/s (median of 5)':>24s}")
+    print(f"{'case':36s} {'bytes/rec':>9s} {'records/s, checks on':>21s} {'checks off':>11s} {'on/off':>7s}")
     for name, (make, stream) in cases.items():
-        per_s, size = rate(make, stream, n)
-        print(f"{name:36s} {size:9d} {per_s:24,.0f}")
+        on, off, size = rate(make, stream, n)
+        print(f"{name:36s} {size:9d} {on:21,.0f} {off:11,.0f} {on / off:7.2f}")
     for protocol in ("xbus", "lines"):
         print(f"{'pty end to end ' + protocol:36s} {'':9s} {end_to_end(protocol):24,.0f}")
 

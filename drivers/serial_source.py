@@ -5,14 +5,16 @@ time.monotonic_ns(): ``raw`` holds the bytes exactly as they arrived (what a ses
 and the arrays hold the records the protocol parser completed with them. Replaying recorded raw
 chunks through ``decode_packet_bytes`` gives the same records. The port is opened with
 ``serial.serial_for_url``, so ``/dev/ttyUSB0``, ``loop://``, ``socket://host:port`` and
-``rfc2217://host:port`` all work. An I/O error after the first successful open (cable pulled,
-pty closed) is a gap: counted, timed, and retried with bounded exponential backoff until the
-port comes back. Source strings (``serial:/dev/ttyUSB0:xbus[:baud]``) are parsed by
-drivers/source_url.py.
+``rfc2217://host:port`` all work. The constructor opens the port, so a port that cannot be
+opened (missing, not a serial device, a refused socket) is a DeviceError / DeviceNotFoundError
+before anything runs. An I/O error after that (cable pulled, pty closed) is a gap: counted,
+timed, and retried with bounded exponential backoff until the port comes back. Source strings
+(``serial:/dev/ttyUSB0:xbus[:baud]``) are parsed by drivers/source_url.py.
 """
 
 from __future__ import annotations
 
+import errno
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -20,9 +22,10 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 import serial
 
+from drivers.source_url import MAX_BAUD
 from drivers.text_lines import LineParser
 from drivers.xbus import XbusConfigurator, XbusParser
-from live.core.errors import DeviceError, UserInputError
+from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.protocols import StreamInfo
 
@@ -53,10 +56,10 @@ def _stack(values: list, width: int) -> np.ndarray | None:
 def records_to_arrays(records: Sequence) -> dict[str, np.ndarray | None]:
     """XbusSample / LineSample records -> MocapPacket arrays.
 
-    sensors (S,) int32; quats (S, 4) float32 (NaN where a record had no orientation); counter
+    sensors (S,) int64; quats (S, 4) float32 (NaN where a record had no orientation); counter
     (S,) int64 (-1 where missing) or None; acc / gyro / mag (S, 3) float32 or None.
     """
-    sensors = np.fromiter((r.sensor for r in records), dtype=np.int32, count=len(records))
+    sensors = np.fromiter((r.sensor for r in records), dtype=np.int64, count=len(records))
     quats = _stack([r.quat for r in records], 4)
     if quats is None:
         quats = np.full((len(records), 4), np.nan, dtype=np.float32)
@@ -85,13 +88,28 @@ def decode_packet_bytes(raw_chunks: Iterable[bytes], protocol: str, *, t_ns: Ite
             for raw in raw_chunks]
 
 
+def _open_error(url: str, exc: BaseException) -> DeviceError:
+    """One line for a port that would not open; DeviceNotFoundError when it does not exist."""
+    text = " ".join(str(exc).split())
+    if getattr(exc, "errno", None) == errno.ENOENT or "No such file" in text:
+        return DeviceNotFoundError(f"serial port {url} not found")
+    if "Inappropriate ioctl" in text:
+        return DeviceError(f"cannot open serial port {url}: not a serial device")
+    # pyserial nests the OS message: "could not open port X: [Errno 111] Connection refused"
+    reason = text.rsplit("] ", 1)[-1] if "[Errno" in text else text
+    return DeviceError(f"cannot open serial port {url}: {reason}")
+
+
 class SerialSource:
     """Source over a serial port. ``run(emit, stop)`` blocks; ``start(emit)`` / ``stop()`` run it
     on one thread of its own.
 
     url: anything ``serial.serial_for_url`` opens; protocol: "xbus" | "lines"; name: stream
-    name; baud: line rate; xbus_config: keyword arguments of ``XbusConfigurator.configure``
-    sent on every (re)connect (Xbus only); parser_options: passed to the parser.
+    name; baud: line rate (1 .. MAX_BAUD); xbus_config: keyword arguments of
+    ``XbusConfigurator.configure`` sent on every (re)connect (Xbus only); parser_options: passed
+    to the parser. The port is opened (and configured) here: DeviceNotFoundError when it does
+    not exist, DeviceError when it cannot be opened or configured. ``close()`` (or leaving a
+    ``with`` block) releases a port that was never run.
     """
 
     def __init__(self, url: str, protocol: str = "xbus", *, name: str = "serial", baud: int | None = None,
@@ -104,6 +122,8 @@ class SerialSource:
         self.protocol = protocol
         self.name = name
         self.baud = baud if baud is not None else DEFAULT_BAUD[protocol]
+        if isinstance(self.baud, bool) or not isinstance(self.baud, int) or not 0 < self.baud <= MAX_BAUD:
+            raise UserInputError(f"baud rate {baud!r} out of range: 1 to {MAX_BAUD}")
         self.read_timeout = read_timeout
         self.backoff_start, self.backoff_max = backoff_start, backoff_max
         self.xbus_config = xbus_config
@@ -116,6 +136,7 @@ class SerialSource:
         self.error: BaseException | None = None
         #: Set while the port is open (cleared during a gap).
         self.connected = threading.Event()
+        self._port = self._open()  # the first open: failing here is an error, not a gap
 
     def streams(self) -> list[StreamInfo]:
         return [StreamInfo(self.name, "serial",
@@ -131,8 +152,8 @@ class SerialSource:
     def _open(self):
         try:
             port = serial.serial_for_url(self.url, baudrate=self.baud, timeout=self.read_timeout)
-        except (serial.SerialException, OSError, ValueError) as e:
-            raise DeviceError(f"cannot open serial port {self.url}: {e}") from None
+        except (serial.SerialException, OSError, ValueError, OverflowError) as e:
+            raise _open_error(self.url, e) from None
         try:
             if self.xbus_config is not None:
                 XbusConfigurator(port, timeout=1.0).configure(**self.xbus_config)
@@ -154,9 +175,18 @@ class SerialSource:
             return port
         return None
 
+    def close(self) -> None:
+        """Release the port opened by the constructor when ``run`` never took it."""
+        port, self._port = self._port, None
+        if port is not None:
+            port.close()
+
     def run(self, emit: Callable[[object], None], stop: threading.Event) -> None:
-        """Read until ``stop``; DeviceError only when the port cannot be opened the first time."""
-        port = self._open()
+        """Read until ``stop``, reconnecting after a gap. DeviceError only when the port cannot
+        be opened at the start (a source run again after ``run`` returned opens it anew)."""
+        port, self._port = self._port, None
+        if port is None:
+            port = self._open()
         try:
             while port is not None and not stop.is_set():
                 self._counters["connects"] += 1
@@ -239,3 +269,4 @@ class SerialSource:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+        self.close()

@@ -27,6 +27,8 @@ from live.core.errors import UserInputError
 
 KINDS = ("oak", "realsense", "realsense-bag", "serial", "replay", "folder", "sim")
 SERIAL_PROTOCOLS = ("xbus", "lines")
+#: Highest accepted line rate (FTDI / CP210x USB-UARTs top out at 12 Mbaud).
+MAX_BAUD = 16_000_000
 
 ACCEPTED_FORMS = (
     "oak[:MXID|NAME], realsense[:SERIAL], realsense-bag:FILE.bag, "
@@ -56,7 +58,7 @@ def _parse_serial(text: str, rest: str) -> SourceSpec:
     # From the right: an optional all-digit baud, then the protocol; the rest is the port.
     parts = rest.rsplit(":", 2)
     baud: int | None = None
-    if len(parts) == 3 and parts[2].isdigit():
+    if len(parts) == 3 and parts[2].isascii() and parts[2].isdigit():
         baud = int(parts[2])
         port, protocol = parts[0], parts[1]
     else:
@@ -66,8 +68,8 @@ def _parse_serial(text: str, rest: str) -> SourceSpec:
         raise _bad(text, f"the serial protocol must be one of {'|'.join(SERIAL_PROTOCOLS)}")
     if not port:
         raise _bad(text, "the serial port is missing")
-    if baud is not None and baud <= 0:
-        raise _bad(text, "the baud rate must be positive")
+    if baud is not None and not 0 < baud <= MAX_BAUD:
+        raise _bad(text, f"the baud rate must be 1 to {MAX_BAUD}")
     options: dict[str, Any] = {"protocol": protocol}
     if baud is not None:
         options["baud"] = baud

@@ -5,12 +5,15 @@ One sample per line, terminated by ``\\n`` (a ``\\r`` before it is ignored), in 
     <t_us>,<sensor>,<qw>,<qx>,<qy>,<qz>[,<ax>,<ay>,<az>[,<gx>,<gy>,<gz>]]
     {"t_us": 123, "sensor": 3, "q": [w, x, y, z], "acc": [..], "gyro": [..], "mag": [..]}
 
-t_us: the device's microsecond clock (integer); sensor: integer id; q: sensor-to-world unit
-quaternion; acc m/s^2, gyro rad/s, mag a.u. in the sensor frame. Either form may end with an
+t_us: the device's microsecond clock (integer, 0 <= t_us < 2^63); sensor: integer id in the
+int64 range (a 48-bit MAC fits; the CSV form also takes ``0x``-prefixed hex); q: sensor-to-world
+unit quaternion; acc m/s^2, gyro rad/s, mag a.u. in the sensor frame. Either form may end with an
 NMEA-style checksum ``*HH`` (two hex digits, XOR of every byte before the ``*``); when present it
 is verified. By default quaternions are taken as ENU (what the BNO08x rotation vector reports)
 and converted to the livecap world exactly like Xbus ENU data (drivers.xbus); ``frame="world"``
-passes them through for firmware that already sends livecap world orientations.
+passes them through for firmware that already sends livecap world orientations. Decoded samples
+go through the plausibility checks of drivers/plausibility.py (NaN / inf, unit norm, t_us
+continuity and turn rate per sensor), which drop and count implausible ones.
 """
 
 from __future__ import annotations
@@ -21,10 +24,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.plausibility import (
+    LINE_LIMITS,
+    ContinuityFilter,
+    ImplausibleSample,
+    PlausibilityLimits,
+    all_finite,
+    check_norm,
+    new_counters,
+)
 from drivers.xbus import FRAME_TO_WORLD
 from live.core import vec3 as v3
 
 MAX_LINE = 512
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 FRAMES = ("enu", "world")
 _IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
@@ -89,11 +102,28 @@ def encode_line(sensor: int, t_us: int, quat: Iterable[float], *, acc: Iterable[
     return body + b"\n"
 
 
-def _vec3(values) -> np.ndarray:
-    v = np.array([float(x) for x in values], dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise ValueError("expected three finite numbers")
+def _floats(values, n: int) -> tuple[float, ...]:
+    v = tuple(float(x) for x in values)
+    if len(v) != n:
+        raise ValueError(f"expected {n} numbers")
     return v
+
+
+def _int_field(value: str) -> int:
+    """A CSV integer field: decimal, or hex with a 0x prefix (a MAC address as a sensor id)."""
+    value = value.strip()
+    return int(value[2:], 16) if value[:2].lower() == "0x" else int(value)
+
+
+def _check_ids(sensor: int, t_us: int) -> None:
+    if not INT64_MIN <= sensor <= INT64_MAX:
+        raise ValueError("the sensor id does not fit in 64 bits")
+    if not 0 <= t_us <= INT64_MAX:
+        raise ValueError("t_us must be a non-negative 64-bit integer")
+
+
+def _array(v: tuple[float, ...] | None) -> np.ndarray | None:
+    return None if v is None else np.array(v, dtype=np.float64)
 
 
 class LineParser:
@@ -102,10 +132,12 @@ class LineParser:
     Lines longer than ``max_line`` bytes (a lost terminator, binary noise) are discarded up to
     the next newline without buffering them; bad lines are counted, never raised.
     require_checksum: reject lines without a ``*HH`` suffix (noisy links; a line cut short by a
-    lost byte could otherwise still parse).
+    lost byte could otherwise still parse). plausibility: the checks of drivers/plausibility.py,
+    counted by reason (None: only the syntax and a norm within 0.5 of 1 are checked).
     """
 
-    def __init__(self, *, max_line: int = MAX_LINE, frame: str = "enu", require_checksum: bool = False):
+    def __init__(self, *, max_line: int = MAX_LINE, frame: str = "enu", require_checksum: bool = False,
+                 plausibility: PlausibilityLimits | None = LINE_LIMITS):
         if frame not in FRAMES:
             raise ValueError(f"unknown frame {frame!r}; expected one of {FRAMES}")
         self.max_line = max_line
@@ -116,6 +148,12 @@ class LineParser:
         self.counters: dict[str, int] = {
             "lines": 0, "samples": 0, "bad_lines": 0, "bad_checksum": 0, "too_long": 0,
         }
+        self.limits = plausibility
+        self._continuity: ContinuityFilter | None = None
+        if plausibility is not None:
+            self.counters.update(new_counters())
+            # t_us is the clock (a 32-bit micros() that wraps, or a 64-bit one); no packet counter.
+            self._continuity = ContinuityFilter(plausibility, self.counters, clock_hz=1e6)
 
     def feed(self, data: bytes) -> list[LineSample]:
         out: list[LineSample] = []
@@ -173,9 +211,16 @@ class LineParser:
             self.counters["bad_checksum"] += 1
             return
         try:
-            out.append(self._parse(line))
+            sample = self._parse(line)
+        except ImplausibleSample as e:
+            self.counters[e.reason] += 1
+            return
         except (ValueError, TypeError, KeyError, IndexError, OverflowError, RecursionError):
             self.counters["bad_lines"] += 1
+            return
+        continuity = self._continuity
+        if continuity is None or continuity.accept(sample.sensor, None, sample.t_us, sample.quat.tolist()):
+            out.append(sample)
 
     def _parse(self, line: bytes) -> LineSample:
         text = line.decode("ascii").strip()
@@ -185,27 +230,38 @@ class LineParser:
             if not isinstance(obj, dict):
                 raise ValueError("a JSON line must be an object")
             t_us, sensor, q = obj["t_us"], obj["sensor"], obj["q"]
-            if not isinstance(t_us, int) or not isinstance(sensor, int) or isinstance(sensor, bool):
+            if any(not isinstance(v, int) or isinstance(v, bool) for v in (t_us, sensor)):
                 raise ValueError("t_us and sensor must be integers")
             if not isinstance(q, list) or len(q) != 4:
                 raise ValueError("q must be a list of four numbers")
-            qv = tuple(float(v) for v in q)
-            acc = _vec3(obj["acc"]) if "acc" in obj else None
-            gyro = _vec3(obj["gyro"]) if "gyro" in obj else None
-            mag = _vec3(obj["mag"]) if "mag" in obj else None
+            qv = _floats(q, 4)
+            acc = _floats(obj["acc"], 3) if "acc" in obj else None
+            gyro = _floats(obj["gyro"], 3) if "gyro" in obj else None
+            mag = _floats(obj["mag"], 3) if "mag" in obj else None
         else:
             parts = text.split(",")
             if len(parts) not in (6, 9, 12):
                 raise ValueError(f"a CSV line has 6, 9 or 12 fields, not {len(parts)}")
-            t_us, sensor = int(parts[0]), int(parts[1])
-            qv = tuple(float(v) for v in parts[2:6])
+            t_us, sensor = int(parts[0]), _int_field(parts[1])
+            qv = _floats(parts[2:6], 4)
             if len(parts) >= 9:
-                acc = _vec3(parts[6:9])
+                acc = _floats(parts[6:9], 3)
             if len(parts) == 12:
-                gyro = _vec3(parts[9:12])
-        norm = v3.quat_norm(qv)
-        if not 0.5 < norm < 1.5:  # also false for NaN
-            raise ValueError("q is not a rotation")
+                gyro = _floats(parts[9:12], 3)
+        _check_ids(sensor, t_us)
+        limits = self.limits
+        if limits is not None:
+            if not all(all_finite(v) for v in (qv, acc, gyro, mag) if v is not None):
+                raise ImplausibleSample("non_finite", "a value is NaN or infinite")
+            norm = v3.quat_norm(qv)
+            check_norm(norm, limits)
+        else:
+            norm = v3.quat_norm(qv)
+            if not 0.5 < norm < 1.5:  # also false for NaN
+                raise ValueError("q is not a rotation")
+            if not all(all_finite(v) for v in (acc, gyro, mag) if v is not None):
+                raise ValueError("expected finite numbers")
         qw = v3.quat_mul(self._to_world, qv)
         quat = np.array(qw, dtype=np.float64) / norm
-        return LineSample(sensor=sensor, t_us=t_us, quat=quat, acc=acc, gyro=gyro, mag=mag)
+        return LineSample(sensor=sensor, t_us=t_us, quat=quat, acc=_array(acc), gyro=_array(gyro),
+                          mag=_array(mag))

@@ -32,6 +32,15 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drivers.plausibility import (
+    XBUS_LIMITS,
+    ContinuityFilter,
+    ImplausibleSample,
+    PlausibilityLimits,
+    all_finite,
+    check_norm,
+    new_counters,
+)
 from live.core import vec3 as v3
 from live.core.errors import DeviceError, FormatError
 from live.core.rotations import matrix_to_euler, matrix_to_quat, quat_to_matrix
@@ -214,6 +223,8 @@ def _build_handlers() -> dict[int, tuple[str, int, Any]]:
 
 
 _HANDLERS = _build_handlers()
+_VECTOR_FIELDS = frozenset(("acc", "gyro", "mag"))
+_FLOAT_FIELDS = _VECTOR_FIELDS | {"quat", "matrix", "euler"}
 _ITEM_HEADER = struct.Struct(">HB")
 
 
@@ -235,6 +246,16 @@ def _euler_to_quat(v: tuple) -> tuple[float, float, float, float]:
 _TO_QUAT = {"quat": lambda v: v, "matrix": _matrix_to_quat, "euler": _euler_to_quat}
 
 
+def _check_matrix(v: tuple, limits: PlausibilityLimits) -> None:
+    """Column-major 3x3 (9 floats): columns of unit length and mutually orthogonal."""
+    a0, a1, a2, b0, b1, b2, c0, c1, c2 = v
+    worst = max(abs(a0 * a0 + a1 * a1 + a2 * a2 - 1.0), abs(b0 * b0 + b1 * b1 + b2 * b2 - 1.0),
+                abs(c0 * c0 + c1 * c1 + c2 * c2 - 1.0), abs(a0 * b0 + a1 * b1 + a2 * b2),
+                abs(a0 * c0 + a1 * c1 + a2 * c2), abs(b0 * c0 + b1 * c1 + b2 * c2))
+    if not worst <= 2.0 * limits.norm_tolerance:  # also true for NaN
+        raise ImplausibleSample("implausible_norm", f"rotation matrix is {worst:.3g} off orthonormal")
+
+
 def _orientation_to_world(kind: str, values: tuple, coord: int) -> tuple:
     """Device orientation values -> world quaternion tuple (w, x, y, z)."""
     try:
@@ -243,12 +264,15 @@ def _orientation_to_world(kind: str, values: tuple, coord: int) -> tuple:
         raise FormatError(f"MTData2 {kind} is not a rotation") from None
 
 
-def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, int] | None = None
-                   ) -> XbusSample:
+def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, int] | None = None,
+                   *, limits: PlausibilityLimits | None = None) -> XbusSample:
     """Decode one MTData2 payload into an XbusSample.
 
     Unknown XDIs are skipped by their size (counted in ``counters['unknown_xdi']``). Raises
-    FormatError on a truncated item, a known XDI with the wrong size, or a non-unit orientation.
+    FormatError on a truncated item, a known XDI with the wrong size, or an orientation that is
+    no rotation (norm off by more than 0.1). With ``limits``, also ImplausibleSample (a
+    FormatError) for a NaN / infinite value or an orientation off unit length by more than
+    ``limits.norm_tolerance`` (drivers/plausibility.py).
     """
     sample = XbusSample(bid=bid)
     n = len(payload)
@@ -271,17 +295,24 @@ def decode_mtdata2(payload: bytes, bid: int = BID_MASTER, counters: dict[str, in
             if size != expected:
                 raise FormatError(f"MTData2 item 0x{xdi:04X} has {size} bytes, expected {expected}")
             values = read(payload, i)
-            if field in ("quat", "matrix", "euler"):
-                orient = (field, values, xdi & 0x000C)
-            elif field in ("acc", "gyro", "mag"):
-                setattr(sample, field, np.array(values, dtype=np.float64))
+            if field in _FLOAT_FIELDS:
+                if limits is not None and not all_finite(values):
+                    raise ImplausibleSample("non_finite", f"MTData2 item 0x{xdi:04X} is not finite")
+                if field in _VECTOR_FIELDS:
+                    setattr(sample, field, np.array(values, dtype=np.float64))
+                else:
+                    orient = (field, values, xdi & 0x000C)
             else:
                 setattr(sample, field, values[0])
         i = end
     if orient is not None:
+        if limits is not None and orient[0] == "matrix":
+            _check_matrix(orient[1], limits)
         q = _orientation_to_world(*orient)
         norm = v3.quat_norm(q)
-        if not 0.9 < norm < 1.1:  # also rejects NaN: random bytes posing as a frame
+        if limits is not None:
+            check_norm(norm, limits)
+        elif not 0.9 < norm < 1.1:  # also rejects NaN: random bytes posing as a frame
             raise FormatError(f"MTData2 orientation is not a rotation (norm {norm:.3g})")
         sample.quat = np.array((q[0] / norm, q[1] / norm, q[2] / norm, q[3] / norm))
     return sample
@@ -374,21 +405,35 @@ class XbusParser:
     or content checks costs one byte of resync, so an intact frame right after garbage is still
     found. The internal buffer never holds more than one maximal frame between calls. Non-data
     messages go to ``messages`` (a bounded deque). Counts in ``counters``.
+
+    plausibility: the checks of drivers/plausibility.py on every MTData2 sample (a NaN / inf
+    value or a non-unit orientation costs one byte of resync like a bad payload; a counter,
+    SampleTimeFine or turn rate that does not follow the sensor's previous sample drops the
+    frame), counted by reason. None decodes whatever passes the checksum and the content checks.
     """
 
-    def __init__(self, max_messages: int = 64):
+    def __init__(self, max_messages: int = 64, *,
+                 plausibility: PlausibilityLimits | None = XBUS_LIMITS):
         self._buf = bytearray()
         self.messages: deque[XbusMessage] = deque(maxlen=max_messages)
         self.counters: dict[str, int] = {
             "frames": 0, "samples": 0, "bad_checksum": 0, "bad_length": 0, "bad_payload": 0,
             "unknown_mid": 0, "skipped_bytes": 0, "unknown_xdi": 0,
         }
+        self.limits = plausibility
+        self._continuity: ContinuityFilter | None = None
+        if plausibility is not None:
+            self.counters.update(new_counters())
+            # Packet counter: u16; SampleTimeFine: u32 ticks of 100 us.
+            self._continuity = ContinuityFilter(plausibility, self.counters, clock_hz=10_000.0,
+                                                counter_modulus=1 << 16, clock_modulus=1 << 32)
 
     def feed(self, data: bytes) -> list[XbusSample]:
         buf = self._buf
         buf += data
         n = len(buf)
         c = self.counters
+        continuity = self._continuity
         out: list[XbusSample] = []
         pos = 0
         while True:
@@ -424,13 +469,22 @@ class XbusParser:
             mid = buf[start + 2]
             if mid == MID_MTDATA2:
                 try:
-                    sample = decode_mtdata2(bytes(buf[start + head:end - 1]), buf[start + 1], c)
+                    sample = decode_mtdata2(bytes(buf[start + head:end - 1]), buf[start + 1], c,
+                                            limits=self.limits)
+                except ImplausibleSample as e:
+                    c[e.reason] += 1
+                    c["skipped_bytes"] += 1
+                    pos = start + 1
+                    continue
                 except (ValueError, struct.error, OverflowError):
                     c["bad_payload"] += 1
                     c["skipped_bytes"] += 1
                     pos = start + 1
                     continue
-                out.append(sample)
+                if continuity is None or continuity.accept(
+                        sample.sensor, sample.counter, sample.sample_time_fine,
+                        None if sample.quat is None else sample.quat.tolist()):
+                    out.append(sample)
             else:
                 allowed = _KNOWN_MIDS.get(mid)
                 if allowed is None or length not in allowed:

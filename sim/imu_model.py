@@ -47,7 +47,7 @@ class ImuNoise:
 class ImuTrack:
     """Per-sensor IMU signals of one motion. T frames at ``fps``, S sensors.
 
-    sensors (S,) int32 ids; joints (S,) joint index per sensor; mounting (S, 4) sensor-in-segment
+    sensors (S,) int64 ids; joints (S,) joint index per sensor; mounting (S, 4) sensor-in-segment
     rotations; quats (T, S, 4) reported sensor-to-world orientations (with drift and noise);
     true_quats (T, S, 4) without them; gyro (T, S, 3) rad/s, acc (T, S, 3) m/s^2 specific force,
     mag (T, S, 3) a.u., all in the sensor frame.
@@ -124,7 +124,7 @@ def simulate_imus(motion, layout: dict[int, int], *, mounting: np.ndarray | None
                   noise: ImuNoise = ImuNoise(), seed: int = 0) -> ImuTrack:
     """IMU signals of ``motion`` (rotations (T,22,4), root (T,3), rest_joints (22,3), fps) for the
     suit ``layout`` {sensor id: joint index}. mounting: (S, 4) or None (identity)."""
-    sensors = np.array(sorted(layout), dtype=np.int32)
+    sensors = np.array(sorted(layout), dtype=np.int64)
     joints = np.array([layout[s] for s in sensors], dtype=np.int64)
     S = len(sensors)
     mounting = random_mounting(S, None) if mounting is None else np.asarray(mounting, np.float64)

@@ -12,7 +12,7 @@ import pytest
 from drivers.serial_source import SerialSource, decode_packet_bytes, records_to_arrays
 from drivers.text_lines import encode_line
 from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2
-from live.core.errors import DeviceError, UserInputError
+from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.protocols import Source
 from live.core.rotations import quat_normalize
@@ -65,17 +65,43 @@ def test_unknown_protocol_is_a_user_error():
 
 
 def test_source_protocol_and_stream_info():
-    src = SerialSource("loop://", "lines", name="suit", baud=921600)
-    assert isinstance(src, Source)
-    (info,) = src.streams()
-    assert (info.name, info.kind, info.meta) == ("suit", "serial",
-                                                 {"protocol": "lines", "port": "loop://", "baud": 921600})
+    with SerialSource("loop://", "lines", name="suit", baud=921600) as src:
+        assert isinstance(src, Source)
+        (info,) = src.streams()
+        assert (info.name, info.kind, info.meta) == ("suit", "serial",
+                                                     {"protocol": "lines", "port": "loop://", "baud": 921600})
 
 
-def test_first_open_failure_raises_device_error(tmp_path):
-    src = SerialSource(str(tmp_path / "no-such-port"), "xbus")
+def refused_port() -> int:
+    """A local TCP port nobody listens on."""
+    with socket.create_server(("127.0.0.1", 0)) as srv:
+        return srv.getsockname()[1]
+
+
+def test_a_port_that_cannot_be_opened_fails_at_construction(tmp_path):
+    with pytest.raises(DeviceNotFoundError, match="not found") as info:
+        SerialSource(str(tmp_path / "no-such-port"), "xbus")
+    assert "\n" not in str(info.value)
+    with pytest.raises(DeviceError, match="not a serial device"):
+        SerialSource("/dev/null", "lines")
+    with pytest.raises(DeviceError, match="refused") as info:
+        SerialSource(f"socket://127.0.0.1:{refused_port()}", "xbus")
+    assert not isinstance(info.value, DeviceNotFoundError)
+
+
+@pytest.mark.parametrize("baud", [0, -9600, 10**20, 16_000_001, 9600.5, True])
+def test_baud_out_of_range_is_a_user_error(baud):
+    with pytest.raises(UserInputError, match="baud"):
+        SerialSource("loop://", "xbus", baud=baud)
+
+
+def test_run_reopens_after_close_and_fails_loudly_when_the_port_is_gone(server):
+    src = SerialSource(f"socket://127.0.0.1:{server.getsockname()[1]}", "lines")
+    src.close()
+    server.close()  # "never opened" for this run: an error, not a gap
     with pytest.raises(DeviceError, match="cannot open"):
         src.run(lambda p: None, threading.Event())
+    assert src.counters["gaps"] == 0 and src.counters["connects"] == 0
 
 
 def test_packets_carry_raw_bytes_and_match_replay(server):

@@ -57,15 +57,76 @@ def test_partial_lines_byte_by_byte():
 
 
 @pytest.mark.parametrize("line", [
-    b"hello world", b"1,2,3", b"1,2,nan,0,0,0", b"1,2,0,0,0,0", b"1,2,1,0,0,0,1,2",
+    b"hello world", b"1,2,3", b"1,2,1,0,0,0,1,2",
     b"x,2,1,0,0,0", b'{"t_us":1,"sensor":2,"q":[1,0,0]}', b'{"t_us":1,"sensor":true,"q":[1,0,0,0]}',
-    b"[1,2,3]", b'{"t_us":1', b"1,2,1,0,0,0,1,2,inf", b'{"t_us":1,"sensor":2,"q":[1,0,0,0],"acc":[1]}',
-    b"\xff\xfe,1,1,0,0,0",
+    b"[1,2,3]", b'{"t_us":1', b'{"t_us":1,"sensor":2,"q":[1,0,0,0],"acc":[1]}',
+    b"\xff\xfe,1,1,0,0,0", b"-1,2,1,0,0,0", b"1,%d,1,0,0,0" % (1 << 63), b"%d,2,1,0,0,0" % (1 << 63),
+    b'{"t_us":true,"sensor":2,"q":[1,0,0,0]}', b"1,0x,1,0,0,0",
 ])
 def test_bad_lines_are_counted(line):
     p = LineParser()
     assert p.feed(line + b"\n" + b"9,9,1,0,0,0\n")[0].t_us == 9
     assert p.counters["bad_lines"] == 1 and p.counters["samples"] == 1
+
+
+@pytest.mark.parametrize("line, reason", [
+    (b"1,2,nan,0,0,0", "non_finite"), (b"1,2,1,0,0,0,1,2,inf", "non_finite"),
+    (b'{"t_us":1,"sensor":2,"q":[1,0,0,0],"mag":[1,NaN,0]}', "non_finite"),
+    (b'{"t_us":1,"sensor":2,"q":[1,0,0,0],"gyro":[1e999,0,0]}', "non_finite"),
+    (b"1,2,0,0,0,0", "implausible_norm"), (b"1,2,1.02,0,0,0", "implausible_norm"),
+    (b"1,2,0.7,0.7,0.7,0", "implausible_norm"),
+])
+def test_implausible_values_are_dropped_and_counted_by_reason(line, reason):
+    p = LineParser()
+    assert [s.t_us for s in p.feed(line + b"\n" + b"9,9,1,0,0,0\n")] == [9]
+    assert p.counters[reason] == 1 and p.counters["bad_lines"] == 0 and p.counters["samples"] == 1
+
+
+def test_64_bit_sensor_ids():
+    mac = 0x246F28A1B2C3  # an ESP32 MAC as the id, decimal or hex
+    p = LineParser()
+    got = p.feed(b"0,%d,1,0,0,0\n10000,0x246f28a1b2c3,1,0,0,0\n" % mac
+                 + b'{"t_us":20000,"sensor":%d,"q":[1,0,0,0]}\n' % ((1 << 63) - 1))
+    assert [s.sensor for s in got] == [mac, mac, (1 << 63) - 1]
+    assert encode_line(mac, 5, [1, 0, 0, 0]).split(b",")[1] == str(mac).encode()
+
+
+def test_clock_continuity_and_turn_rate_per_sensor():
+    """t_us must advance (by at most 5 s) and a sensor may not turn faster than 50 rad/s."""
+    flipped = [0.0, 0.0, 0.0, 1.0]  # 180 degrees away from identity
+    small = [np.cos(0.1), np.sin(0.1), 0, 0]  # 0.2 rad: 20 rad/s over 10 ms
+    lines = [(1, 0, [1, 0, 0, 0]), (2, 0, [1, 0, 0, 0]), (1, 10_000, flipped), (1, 20_000, small),
+             (1, 20_000, small), (1, 15_000, small), (2, 10_000, flipped), (1, 30_000, small)]
+    p = LineParser(frame="world")
+    got = p.feed(b"".join(encode_line(s, t, q, frame="world") for s, t, q in lines))
+    # dropped: sensor 1's 180-degree flip in 10 ms, its repeated and its backwards stamp, and
+    # sensor 2's flip (each sensor is judged against its own previous sample)
+    assert [(s.sensor, s.t_us) for s in got] == [(1, 0), (2, 0), (1, 20_000), (1, 30_000)]
+    c = p.counters
+    assert (c["implausible_rate"], c["counter_jump"], c["samples"]) == (2, 2, 4)
+
+
+def test_a_real_discontinuity_reanchors_after_one_sample():
+    """A device reset (clock back to 0) or a long pause costs one sample, not the sensor."""
+    p = LineParser(frame="world")
+    q = [1.0, 0.0, 0.0, 0.0]
+    stamps = [5_000_000, 5_010_000, 0, 10_000, 20_000, 60_000_000, 60_010_000]
+    got = p.feed(b"".join(encode_line(1, t, q, frame="world") for t in stamps))
+    assert [s.t_us for s in got] == [5_000_000, 5_010_000, 10_000, 20_000, 60_010_000]
+    assert p.counters["counter_jump"] == 2 and p.counters["reanchored"] == 2
+
+
+def test_a_32_bit_microsecond_clock_may_wrap():
+    p = LineParser(frame="world")
+    got = p.feed(b"".join(encode_line(1, t, [1, 0, 0, 0], frame="world")
+                          for t in ((1 << 32) - 10_000, 0, 10_000)))
+    assert len(got) == 3 and p.counters["counter_jump"] == 0
+
+
+def test_checks_off_decodes_what_the_syntax_allows():
+    p = LineParser(plausibility=None)
+    got = p.feed(b"0,1,1.2,0,0,0\n0,1,0,0,0,1\n")
+    assert len(got) == 2 and "implausible_rate" not in p.counters
 
 
 def test_checksums():
@@ -111,7 +172,8 @@ def test_fuzz_corrupted_lines_recover_every_intact_line():
     for i in range(n):
         if rng.random() < 0.2:  # line noise; the next intact line starts after its newline
             pieces.append(rng.integers(0, 256, int(rng.integers(1, 200)), dtype=np.uint8).tobytes() + b"\n")
-        line = bytearray(encode_line(i % 15 + 1, i, quats[i], fmt="json" if i % 3 == 0 else "csv",
+        # 150 ms between two lines of a sensor: random orientations are plausible turns
+        line = bytearray(encode_line(i % 15 + 1, 10_000 * i, quats[i], fmt="json" if i % 3 == 0 else "csv",
                                      checksum=True))
         if corrupt[i]:
             j = int(rng.integers(len(line) - 1))
@@ -122,8 +184,8 @@ def test_fuzz_corrupted_lines_recover_every_intact_line():
     p = LineParser(require_checksum=True)
     cuts = np.concatenate([[0], np.sort(rng.choice(len(stream), 3000, replace=False)), [len(stream)]])
     got = [s for a, b in zip(cuts[:-1], cuts[1:]) for s in p.feed(stream[a:b])]
-    assert {s.t_us for s in got} == set(np.flatnonzero(~corrupt).tolist())
+    assert {s.t_us // 10_000 for s in got} == set(np.flatnonzero(~corrupt).tolist())
     for s in got:
-        np.testing.assert_allclose(s.quat, quats[s.t_us], atol=1e-12)
+        np.testing.assert_allclose(s.quat, quats[s.t_us // 10_000], atol=1e-12)
     c = p.counters
     assert c["bad_checksum"] + c["bad_lines"] + c["too_long"] >= corrupt.sum()

@@ -142,7 +142,7 @@ def test_unknown_items_skipped_and_bad_payloads_counted():
         with pytest.raises(FormatError):
             decode_mtdata2(payload)
         assert parser.feed(encode_message(1, MID_MTDATA2, payload)) == []
-    assert parser.counters["bad_payload"] == 3
+    assert parser.counters["bad_payload"] == 2 and parser.counters["implausible_norm"] == 1
 
 
 def test_non_data_messages_go_to_the_message_queue():
@@ -250,3 +250,72 @@ def test_configurator_error_and_timeout():
     silent = FakePort(lambda msg: b"")
     with pytest.raises(DeviceError, match="no acknowledgement"):
         XbusConfigurator(silent, timeout=0.05).go_to_measurement()
+
+
+# ----------------------------------------------------------------------------- plausibility
+
+def _frame(bid=1, **fields) -> bytes:
+    return encode_message(bid, MID_MTDATA2, encode_mtdata2(**fields))
+
+
+@pytest.mark.parametrize("field", ["acc", "gyro", "mag"])
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), -float("inf")])
+def test_non_finite_values_are_dropped_and_counted(field, bad):
+    frame = _frame(quat=[1, 0, 0, 0], counter=1, **{field: [0.0, bad, 1.0]})
+    parser = XbusParser()
+    assert parser.feed(frame + _frame(quat=[1, 0, 0, 0], counter=2)) != []
+    assert parser.counters["non_finite"] == 1 and parser.counters["samples"] == 1
+    assert parser.counters["bad_payload"] == 0
+    (raw,) = XbusParser(plausibility=None).feed(frame)  # the bare decoder takes what it is sent
+    assert not np.isfinite(getattr(raw, field)).all()
+
+
+def test_orientations_off_unit_length_are_dropped():
+    nearly = struct.pack(">4f", 1.03, 0, 0, 0)  # within the bare decoder's 0.9..1.1, not a device's
+    frame = encode_message(1, MID_MTDATA2, bytes.fromhex("201010") + nearly)
+    parser = XbusParser()
+    assert parser.feed(frame) == [] and parser.counters["implausible_norm"] == 1
+    assert len(XbusParser(plausibility=None).feed(frame)) == 1
+    skewed = np.eye(3)
+    skewed[0, 1] = 0.05  # not orthonormal: a damaged rotation matrix
+    raw = bytes.fromhex("202024") + struct.pack(">9f", *skewed.T.reshape(9))
+    assert parser.feed(encode_message(1, MID_MTDATA2, raw)) == [] and parser.counters["implausible_norm"] == 2
+
+
+def test_turn_rate_and_counter_continuity_per_sensor():
+    ident = [1.0, 0.0, 0.0, 0.0]
+    sign_flip = quat_normalize(np.array([0.6, 0.8, 0.0, 0.0]))  # what a flipped sign bit makes of (0.6, -0.8, 0, 0)
+    start = quat_normalize(np.array([0.6, -0.8, 0.0, 0.0]))
+    turned = quat_from_axis_angle(np.array([0.0, 0.3, 0.0]))  # 0.3 rad in 10 ms: 30 rad/s
+    frames = [
+        _frame(1, quat=start, counter=0, sample_time_fine=0),
+        _frame(2, quat=ident, counter=0, sample_time_fine=0),
+        _frame(1, quat=sign_flip, counter=1, sample_time_fine=100),  # 2.6 rad in 10 ms: dropped
+        _frame(2, quat=turned, counter=1, sample_time_fine=100),  # kept
+        _frame(2, quat=turned, counter=1, sample_time_fine=200),  # counter did not advance
+        _frame(2, quat=turned, counter=2 + 4096, sample_time_fine=300),  # counter jumped ahead
+        _frame(2, quat=turned, counter=3, sample_time_fine=100),  # clock went back
+        _frame(2, quat=turned, counter=4, sample_time_fine=400),
+        _frame(1, quat=start, counter=2, sample_time_fine=200),
+    ]
+    parser = XbusParser()
+    got = parser.feed(b"".join(frames))
+    assert [(s.bid, s.counter) for s in got] == [(1, 0), (2, 0), (2, 1), (2, 4), (1, 2)]
+    c = parser.counters
+    assert (c["implausible_rate"], c["counter_jump"], c["frames"], c["samples"]) == (1, 3, 9, 5)
+
+
+def test_counters_wrap_and_a_reset_device_reanchors():
+    q = [1.0, 0.0, 0.0, 0.0]
+    wrap = [_frame(quat=q, counter=c, sample_time_fine=t)
+            for c, t in ((65534, (1 << 32) - 200), (65535, (1 << 32) - 100), (0, 0), (1, 100))]
+    parser = XbusParser()
+    assert len(parser.feed(b"".join(wrap))) == 4 and parser.counters["counter_jump"] == 0
+    reset = [_frame(quat=q, counter=c, sample_time_fine=100 * c) for c in (0, 1, 2)]
+    assert [s.counter for s in parser.feed(b"".join(reset))] == [1, 2]  # one sample lost
+    assert parser.counters["counter_jump"] == 1 and parser.counters["reanchored"] == 1
+
+
+def test_device_ids_beyond_int32():
+    frames = b"".join(_frame(BID_MASTER, quat=[1, 0, 0, 0], device_id=d) for d in (0x80000000, 0xFFFFFFFF))
+    assert [s.sensor for s in XbusParser().feed(frames)] == [0x80000000, 0xFFFFFFFF]

@@ -52,8 +52,9 @@ class DepthFrame:
 class MocapPacket:
     """One read from a motion-capture device: its raw bytes and/or decoded per-sensor samples.
 
-    sensors: (S,) int32 sensor ids; quats: (S, 4) float32 (w, x, y, z) sensor-to-world
-    orientations; counter (S,) int64, acc (S, 3) m/s^2, gyro (S, 3) rad/s, mag (S, 3) when sent.
+    sensors: (S,) int64 sensor ids (a 48-bit MAC or a 32-bit Xsens DeviceId fits); quats: (S, 4)
+    float32 (w, x, y, z) sensor-to-world orientations; counter (S,) int64, acc (S, 3) m/s^2,
+    gyro (S, 3) rad/s, mag (S, 3) when sent.
     """
 
     t_ns: int

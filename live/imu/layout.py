@@ -25,6 +25,7 @@ from live.core.rotations import quat_normalize
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
 
 DEFAULT_LAYOUT = assets.layouts_dir() / "full_body.json"
+_INT64 = np.iinfo(np.int64)
 
 #: Segment names people use for suits -> canonical joint.
 SEGMENT_ALIASES: dict[str, str] = {
@@ -40,7 +41,7 @@ SEGMENT_ALIASES: dict[str, str] = {
 
 @dataclass(frozen=True)
 class SuitLayout:
-    """A suit: S sensors. sensors (S,) int32 ids, ascending; joints (S,) int64 canonical joint
+    """A suit: S sensors. sensors (S,) int64 ids, ascending; joints (S,) int64 canonical joint
     (segment) of each; mounting (S, 4) nominal sensor-in-segment quaternions (w, x, y, z)."""
 
     name: str
@@ -84,6 +85,8 @@ def _sensor_joints(obj: object, path: str | None) -> dict[int, int]:
             sensor = int(key)
         except ValueError:
             raise FormatError(f"sensor id {key!r} is not an integer", path=path) from None
+        if not _INT64.min <= sensor <= _INT64.max:
+            raise FormatError(f"sensor id {key} does not fit in 64 bits", path=path)
         name = SEGMENT_ALIASES.get(segment, segment) if isinstance(segment, str) else None
         if name not in JOINT_INDEX:
             raise FormatError(f"sensor {sensor}: unknown segment {segment!r}", path=path)
@@ -94,7 +97,7 @@ def _sensor_joints(obj: object, path: str | None) -> dict[int, int]:
 def parse_suit_layout(obj: object, *, path: str | None = None) -> SuitLayout:
     """A layout object (as in a layout file) -> SuitLayout."""
     mapping = _sensor_joints(obj, path)
-    sensors = np.array(list(mapping), dtype=np.int32)
+    sensors = np.array(list(mapping), dtype=np.int64)
     joints = np.array([mapping[s] for s in mapping], dtype=np.int64)
     mounting = np.zeros((len(sensors), 4))
     mounting[:, 0] = 1.0

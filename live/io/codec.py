@@ -97,14 +97,23 @@ def decode_truth(buf: bytes) -> GroundTruth:
 
 _IMU_FIELDS = ("counter", "acc", "gyro", "mag")  # flag bits 0-3: present
 _NO_QUATS = 1 << 4
+_WIDE_IDS = 1 << 5  # sensor ids stored as int64 (only when one does not fit in int32)
+_INT32 = np.iinfo(np.int32)
 
 
 def encode_imu(packet: MocapPacket) -> bytes:
     """Decoded IMU samples (for devices that hand us decoded data, e.g. the OAK's own IMU).
-    A packet without orientations (an IMU without on-chip fusion) sets flag bit 4 and stores none."""
-    sensors = np.asarray(packet.sensors, "<i4")
+    A packet without orientations (an IMU without on-chip fusion) sets flag bit 4 and stores none.
+    Sensor ids beyond int32 (a MAC address, an Xsens DeviceId >= 2^31) set flag bit 5 and are
+    stored as int64; other records keep the int32 ids they always had."""
+    sensors = np.asarray(packet.sensors, np.int64)
     n = len(sensors)
     flags = 0
+    if n and (sensors.min() < _INT32.min or sensors.max() > _INT32.max):
+        flags |= _WIDE_IDS
+        sensors = sensors.astype("<i8")
+    else:
+        sensors = sensors.astype("<i4")
     parts = [sensors.tobytes()]
     if packet.quats is None:
         flags |= _NO_QUATS
@@ -126,8 +135,9 @@ def decode_imu(buf: bytes, device: str) -> MocapPacket:
         raise SessionError("IMU record truncated")
     n, flags = struct.unpack_from("<IB", buf, off)
     off += 5
-    sensors = _take(buf, off, "<i4", n).copy()
-    off += 4 * n
+    id_dtype = "<i8" if flags & _WIDE_IDS else "<i4"
+    sensors = _take(buf, off, id_dtype, n).astype(np.int64)
+    off += np.dtype(id_dtype).itemsize * n
     quats: np.ndarray | None = None
     if not flags & _NO_QUATS:
         quats = _take(buf, off, "<f8", 4 * n).reshape(n, 4).copy()

@@ -86,7 +86,7 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
         if not rec["t_ns"]:
             continue
         arrays: dict[str, np.ndarray] = {
-            "t_ns": np.asarray(rec["t_ns"], np.int64), "sensor": np.asarray(rec["sensor"], np.int32),
+            "t_ns": np.asarray(rec["t_ns"], np.int64), "sensor": np.asarray(rec["sensor"], np.int64),
             "quat": np.asarray(rec["quat"], np.float64).reshape(-1, 4)}
         for key in ("counter", "acc", "gyro", "mag"):
             if rec[key] and len(rec[key]) == len(rec["t_ns"]):
