@@ -3,6 +3,11 @@
 The replay publishes into the same rings that live drivers use. Serial streams are replayed as
 the raw bytes that arrived and decoded here by the same parser a live port uses, so a replay
 exercises the real protocol code.
+
+At recorded timing, a jump between consecutive timestamps of more than ``MAX_JUMP_S`` (either
+way: a stamp from another clock, a corrupted one, a recording paused for long) is not waited
+for: the replay's clock restarts at the frame after it, and the jump is counted in
+``time_jumps``. Damaged parts of the session are skipped by the reader; ``error`` sums them up.
 """
 
 from __future__ import annotations
@@ -17,6 +22,9 @@ from live.core.protocols import StreamInfo
 from live.core.timing import seconds_between
 from live.io.session import SessionReader
 
+#: Largest step between consecutive timestamps a timed replay waits for (seconds of recording).
+MAX_JUMP_S = 5.0
+
 
 class ReplaySource:
     """Source over a session file. ``speed``: 1.0 = recorded timing, 2.0 twice as fast,
@@ -25,10 +33,11 @@ class ReplaySource:
     def __init__(self, path: str | Path, *, speed: float | None = None, only: set[str] | None = None,
                  name: str = "replay"):
         self.reader = SessionReader(path)
+        self.path = self.reader.path
         self.name = name
         self.speed = speed
         self.only = only
-        self._counters: dict[str, int] = {"frames": 0}
+        self._counters: dict[str, int] = {"frames": 0, "time_jumps": 0}
         self.error: str | None = None
         self._decoders: dict[str, object] = {}
 
@@ -55,8 +64,7 @@ class ReplaySource:
         return packet_from_records(packet.t_ns, stream.name, packet.raw, parser.feed(packet.raw))
 
     def run(self, emit: Callable[[object], None], stop: threading.Event) -> None:
-        start_wall = None
-        start_t = None
+        start_wall = start_t = last_t = None
         for stream, frame in self.reader.frames():
             if stop.is_set():
                 break
@@ -64,8 +72,13 @@ class ReplaySource:
                 continue
             if self.speed:
                 t = frame.t_ns
-                if start_wall is None:
+                if start_wall is None or start_t is None or last_t is None:
                     start_wall, start_t = time.monotonic(), t
+                elif abs(seconds_between(last_t, t)) > MAX_JUMP_S:
+                    # Not waited for: the clock restarts here (the frame is due at once).
+                    self._counters["time_jumps"] += 1
+                    start_wall, start_t = start_wall + seconds_between(start_t, last_t) / self.speed, t
+                last_t = t
                 due = start_wall + seconds_between(start_t, t) / self.speed
                 delay = due - time.monotonic()
                 if delay > 0 and stop.wait(delay):
@@ -76,4 +89,4 @@ class ReplaySource:
             emit(frame)
         if self.reader.error:
             self.error = self.reader.error
-            self._counters["damaged"] = 1
+            self._counters["damaged_regions"] = self.reader.damage_count

@@ -60,9 +60,9 @@ def test_truncated_session_replays_and_reports(tmp_path, capsys):
     data = s.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 3 // 4])
-    assert main(["replay", str(cut), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    assert main(["replay", str(cut), "--out", str(tmp_path / "out"), "--quiet"]) == 1  # data lost
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "stopped" in err[0]
+    assert len(err) == 1 and "truncated" in err[0]
     stats = json.loads((tmp_path / "out" / "stats.json").read_text())
     assert 0 < stats["frames"] < 40 and stats["session_error"]
 

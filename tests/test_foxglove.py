@@ -322,7 +322,7 @@ def test_damaged_session_converts_up_to_the_damage(recorded, tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) // 2])
     export = export_foxglove(cut, tmp_path / "o.mcap")
-    assert export.error and "stopped" in export.error
+    assert export.error and "truncated" in export.error
     summary, msgs = _read(tmp_path / "o.mcap")
     assert 0 < export.messages["/depth/cam"] < T and len(msgs) == sum(export.messages.values())
 

@@ -6,7 +6,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from live.app.running import DEMO_SESSION, count_trigger_frames, parse_speed, run_pipeline, write_stats
+from live.app.running import (
+    DEMO_SESSION,
+    EXIT_DATA_LOSS,
+    count_trigger_frames,
+    parse_speed,
+    refuse_overwriting_inputs,
+    run_pipeline,
+    source_inputs,
+    write_stats,
+)
 from live.app.sources import open_replay, open_source
 from live.core.errors import UserInputError
 from live.core.report import p50_p95
@@ -41,6 +50,12 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     if damage:
         print(f"livecap: {damage}", file=sys.stderr)
     return stats
+
+
+def _exit_for(stats: dict) -> int:
+    """EXIT_DATA_LOSS when a replayed session had damaged regions the reader skipped."""
+    damaged = any(src.get("counters", {}).get("damaged_regions") for src in stats["sources"].values())
+    return EXIT_DATA_LOSS if damaged else 0
 
 
 def _capture_mode_stages(mode: str, source, stages: list, args) -> list:
@@ -101,31 +116,47 @@ def cmd_demo(args) -> int:
     print(f"livecap demo: replayed {Path(session).name}")
     _print_summary(stats)
     print(f"  wrote {args.out / 'stats.json'}" + "".join(f", {args.out / n}" for n in stats["outputs"]))
-    return 0
+    return _exit_for(stats)
 
 
 def cmd_replay(args) -> int:
     stats = _replay(args.session, args, args.out)
     if not args.quiet:
         _print_summary(stats)
-    return 0
+    return _exit_for(stats)
 
 
 def _open_sources(specs: list[str]):
     return [open_source(s) for s in specs]
 
 
+def _report_recording(recording: dict, command: str) -> int:
+    """Print what a recording went through; EXIT_DATA_LOSS when a source died or a stream got
+    no data (the gaps are stored in the session too)."""
+    for s in recording["streams"]:
+        refused = f", {s['refused']} refused (over the size limits)" if s["refused"] else ""
+        print(f"  {s['kind']:<6} {s['name']:<12} {s['messages']:>7} messages  {s['seconds']:8.2f} s{refused}")
+    for line in recording["warnings"]:
+        print(f"  note: {line}")
+    for line in recording["problems"]:
+        print(f"livecap {command}: {line}", file=sys.stderr)
+    return EXIT_DATA_LOSS if recording["problems"] else 0
+
+
 def cmd_record(args) -> int:
+    refuse_overwriting_inputs(args.out, source_inputs(args.source))
     sources = _open_sources(args.source)
     stats = run_pipeline(sources, [], [], mode="latest", record=args.out, seconds=args.seconds,
                          progress=not args.quiet)
     print(f"livecap record: {stats['recorded_messages']} messages into {args.out}")
-    return 0
+    return _report_recording(stats["recording"], "record")
 
 
 def cmd_run(args) -> int:
     from live.app.assemble import build
 
+    if args.record is not None:
+        refuse_overwriting_inputs(args.record, source_inputs(args.source), "--record")
     sources = _open_sources(args.source)
     stages, sinks, parts = build(_run_options(args, args.out))
     stats = run_pipeline(sources, stages, sinks, mode="latest", record=args.record,
@@ -133,6 +164,9 @@ def cmd_run(args) -> int:
     _add_skeleton_lag(stats, parts)
     write_stats(args.out, stats)
     _print_summary(stats)
+    if args.record is not None:
+        print(f"  recorded {stats['recorded_messages']} messages into {args.record}")
+        return _report_recording(stats["recording"], "run")
     return 0
 
 
@@ -144,4 +178,4 @@ def cmd_render(args) -> int:
     with tempfile.TemporaryDirectory(prefix="livecap-render-") as tmp:
         stats = _replay(args.session, args, Path(tmp), video=args.out)
     print(f"livecap render: {stats['frames']} frames -> {args.out}")
-    return 0
+    return _exit_for(stats)

@@ -3,19 +3,53 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import sys
 import threading
+from collections.abc import Iterable
 from contextlib import contextmanager
 from pathlib import Path
 
 from live.core import assets
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
-from live.io.session import SessionWriter
+from live.io.session import FLUSH_INTERVAL_S, FSYNC_INTERVAL_S, SessionWriter
 from live.pipeline.runner import Pipeline
 
 DEMO_SESSION = assets.demo_session()
+#: Exit status of a command that finished but lost data: a damaged session read around, a
+#: recording whose source died.
+EXIT_DATA_LOSS = 1
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (symlinks resolved, hard links compared)."""
+    try:
+        if a.resolve() == b.resolve():
+            return True
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def refuse_overwriting_inputs(out: Path, inputs: Iterable[str | Path], option: str = "--out") -> None:
+    """UserInputError when ``out`` is one of the files a command reads."""
+    for path in inputs:
+        if path and same_file(Path(out), Path(path)):
+            raise UserInputError(f"{option} {out} is an input of this command ({path}): it would be overwritten; "
+                                 "write to another file")
+
+
+def source_inputs(specs: Iterable[str]) -> list[str]:
+    """The files and ports named by source strings (a replayed session, a clip, a port...)."""
+    from drivers.source_url import parse_source
+
+    out: list[str] = []
+    for text in specs:
+        spec = parse_source(text)
+        out += [spec.target] + [v for v in spec.options.values() if isinstance(v, str)]
+    return out
 
 
 @contextmanager
@@ -84,11 +118,18 @@ def write_stats(out_dir: Path, stats: dict) -> Path:
 def run_pipeline(sources, stages, sinks, *, mode: str, record: Path | None = None,
                  progress_total: int | None = None, progress: bool = True,
                  seconds: float | None = None) -> dict:
-    """Run a pipeline until the sources end, ``seconds`` pass, or Ctrl-C / SIGTERM."""
+    """Run a pipeline until the sources end, ``seconds`` pass, or Ctrl-C / SIGTERM.
+
+    ``record``: also record the sources into this session, closing a chunk every
+    FLUSH_INTERVAL_S (a killed run loses at most that) with gap and status records;
+    ``stats["recording"]`` then says what the recording went through (live.io.recording)."""
     recorder = None
+    pipeline: Pipeline | None = None
     if record is not None:
+        refuse_overwriting_inputs(record, [p for src in sources for p in _paths_of(src)], "--record/--out")
         streams = [s for src in sources for s in src.streams()]
-        recorder = SessionWriter(record, streams)
+        recorder = SessionWriter(record, streams, flush_interval_s=FLUSH_INTERVAL_S, fsync_interval_s=FSYNC_INTERVAL_S,
+                                 status=lambda: pipeline.source_status() if pipeline is not None else {})
     bar = Progress(progress_total, "frames", enabled=progress)
     try:
         with stop_on_signals() as stop:
@@ -108,8 +149,16 @@ def run_pipeline(sources, stages, sinks, *, mode: str, record: Path | None = Non
     finally:
         bar.close()
         if recorder is not None:
-            recorder.close()
+            summary = recorder.close()
+    if recorder is not None:
+        stats["recording"] = summary.as_dict()
     return stats
+
+
+def _paths_of(source) -> list[Path]:
+    """Files a source object reads (a replayed session, a folder's images)."""
+    paths = [getattr(source, "path", None)] + list(getattr(source, "images", []) or [])
+    return [Path(p) for p in paths if isinstance(p, str | Path)]
 
 
 def parse_speed(value: str) -> float | None:

@@ -3,6 +3,10 @@
 Each payload starts with a 1-byte tag and a 1-byte version; numbers are little-endian. Clouds are
 quantised to int16 millimetres in the camera frame (±32.7 m, 0.5 mm rounding); depth images keep
 their uint16 millimetres. Compression happens at the MCAP chunk level (zstd), not here.
+
+Sizes a record declares are checked against ceilings before anything is allocated: a depth
+image at most ``MAX_IMAGE_SIDE`` pixels a side, a cloud at most ``MAX_POINTS`` points, an IMU
+record at most ``MAX_IMU_SAMPLES`` samples. The encoders refuse what the decoders would.
 """
 
 from __future__ import annotations
@@ -21,13 +25,18 @@ TAG_DEPTH_IMAGE = ord("I")
 TAG_GT = ord("G")
 TAG_IMU = ord("U")
 
+MAX_IMAGE_SIDE = 4096
+MAX_POINTS = 4_000_000
+MAX_IMU_SAMPLES = 65_536
+
+Buffer = bytes | memoryview
 _HEAD = struct.Struct("<BBq")  # tag, version, t_ns
 _MATS = struct.Struct("<16d9d")  # camera_to_world, intrinsics (zeros when absent)
 _COUNT = struct.Struct("<I")
 _SIZE = struct.Struct("<HH")
 
 
-def _check_head(buf: bytes, tag: int) -> int:
+def _check_head(buf: Buffer, tag: int) -> int:
     if len(buf) < _HEAD.size:
         raise SessionError(f"record too short ({len(buf)} bytes)")
     got_tag, version, t_ns = _HEAD.unpack_from(buf, 0)
@@ -38,7 +47,7 @@ def _check_head(buf: bytes, tag: int) -> int:
     return t_ns
 
 
-def _take(buf: bytes, offset: int, dtype, count: int) -> np.ndarray:
+def _take(buf: Buffer, offset: int, dtype, count: int) -> np.ndarray:
     size = np.dtype(dtype).itemsize * count
     if offset + size > len(buf):
         raise SessionError(f"record truncated: needs {offset + size} bytes, has {len(buf)}")
@@ -52,13 +61,16 @@ def encode_depth(frame: DepthFrame) -> bytes:
     if frame.depth_mm is not None:
         img = np.ascontiguousarray(frame.depth_mm, dtype="<u2")
         h, w = img.shape
+        _check_image(h, w)
         return b"".join([_HEAD.pack(TAG_DEPTH_IMAGE, _VERSION, frame.t_ns), mats, _SIZE.pack(h, w), img.tobytes()])
-    mm = np.rint(np.asarray(frame.points, np.float64) * 1000.0)
+    points = np.asarray(frame.points, np.float64).reshape(-1, 3)
+    _check_points(len(points))
+    mm = np.rint(points * 1000.0)
     q = np.clip(mm, -32767, 32767).astype("<i2")
     return b"".join([_HEAD.pack(TAG_CLOUD, _VERSION, frame.t_ns), mats, _COUNT.pack(len(q)), q.tobytes()])
 
 
-def decode_depth(buf: bytes, sensor: str) -> DepthFrame:
+def decode_depth(buf: Buffer, sensor: str) -> DepthFrame:
     tag = buf[0] if buf else -1
     t_ns = _check_head(buf, TAG_DEPTH_IMAGE if tag == TAG_DEPTH_IMAGE else TAG_CLOUD)
     off = _HEAD.size
@@ -68,14 +80,26 @@ def decode_depth(buf: bytes, sensor: str) -> DepthFrame:
     k = mats[16:].reshape(3, 3).copy()
     intrinsics = k if k[2, 2] != 0 else None
     if tag == TAG_DEPTH_IMAGE:
-        h, w = _SIZE.unpack_from(buf, off)
+        h, w = _SIZE.unpack_from(_take(buf, off, "u1", _SIZE.size).tobytes())
         off += _SIZE.size
+        _check_image(h, w)
         img = _take(buf, off, "<u2", h * w).reshape(h, w).astype(np.uint16)
         return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=c2w, depth_mm=img, intrinsics=intrinsics)
     (n,) = _COUNT.unpack_from(_take(buf, off, "u1", 4).tobytes())
     off += _COUNT.size
+    _check_points(n)
     pts = _take(buf, off, "<i2", 3 * n).reshape(n, 3).astype(np.float32) * np.float32(0.001)
     return DepthFrame(t_ns=t_ns, sensor=sensor, camera_to_world=c2w, points=pts, intrinsics=intrinsics)
+
+
+def _check_image(h: int, w: int) -> None:
+    if not (0 < h <= MAX_IMAGE_SIDE and 0 < w <= MAX_IMAGE_SIDE):
+        raise SessionError(f"depth image of {w} x {h} pixels (at most {MAX_IMAGE_SIDE} a side)")
+
+
+def _check_points(n: int) -> None:
+    if n > MAX_POINTS:
+        raise SessionError(f"cloud of {n} points (at most {MAX_POINTS})")
 
 
 def encode_truth(gt: GroundTruth) -> bytes:
@@ -83,7 +107,7 @@ def encode_truth(gt: GroundTruth) -> bytes:
     return _HEAD.pack(TAG_GT, _VERSION, gt.t_ns) + b"".join(a.tobytes() for a in arrays)
 
 
-def decode_truth(buf: bytes) -> GroundTruth:
+def decode_truth(buf: Buffer) -> GroundTruth:
     t_ns = _check_head(buf, TAG_GT)
     n = NUM_JOINTS
     vals = _take(buf, _HEAD.size, "<f4", n * 3 + n * 4 + 3)
@@ -108,6 +132,8 @@ def encode_imu(packet: MocapPacket) -> bytes:
     stored as int64; other records keep the int32 ids they always had."""
     sensors = np.asarray(packet.sensors, np.int64)
     n = len(sensors)
+    if n > MAX_IMU_SAMPLES:
+        raise SessionError(f"IMU record of {n} samples (at most {MAX_IMU_SAMPLES})")
     flags = 0
     if n and (sensors.min() < _INT32.min or sensors.max() > _INT32.max):
         flags |= _WIDE_IDS
@@ -128,13 +154,15 @@ def encode_imu(packet: MocapPacket) -> bytes:
     return _HEAD.pack(TAG_IMU, _VERSION, packet.t_ns) + struct.pack("<IB", n, flags) + b"".join(parts)
 
 
-def decode_imu(buf: bytes, device: str) -> MocapPacket:
+def decode_imu(buf: Buffer, device: str) -> MocapPacket:
     t_ns = _check_head(buf, TAG_IMU)
     off = _HEAD.size
     if off + 5 > len(buf):
         raise SessionError("IMU record truncated")
     n, flags = struct.unpack_from("<IB", buf, off)
     off += 5
+    if n > MAX_IMU_SAMPLES:
+        raise SessionError(f"IMU record of {n} samples (at most {MAX_IMU_SAMPLES})")
     id_dtype = "<i8" if flags & _WIDE_IDS else "<i4"
     sensors = _take(buf, off, id_dtype, n).astype(np.int64)
     off += np.dtype(id_dtype).itemsize * n

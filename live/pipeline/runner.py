@@ -50,6 +50,7 @@ class _SourceRun:
     done: threading.Event = field(default_factory=threading.Event)
     frames: int = 0
     error: str | None = None
+    ended_on_its_own: bool = False  # its run returned before the pipeline was stopped
 
 
 class Pipeline:
@@ -124,8 +125,27 @@ class Pipeline:
             run.error = f"{type(exc).__name__}: {exc}"
             log.error("source %s stopped: %s", run.source.name, run.error)
         finally:
+            run.ended_on_its_own = not stop.is_set()
             run.done.set()
             run.ring.close()
+
+    def source_status(self) -> dict[str, dict]:
+        """Each source's state for the session recorder (live.io.recording.summarise): its
+        streams, the error that stopped it, whether its run returned, whether its device is
+        connected (None: it does not say) and how many times it was disconnected. ``ended``: its
+        run returned before the pipeline was stopped (a replay that reached its end, a device
+        that failed)."""
+        out = {}
+        for run in self._runs:
+            src = run.source
+            # A device source keeps its disconnections as [start_ns, end_ns or None] (the serial
+            # transport): the last one still open means disconnected, even once it is stopped.
+            gaps = getattr(src, "gaps", None)
+            connected = None if not isinstance(gaps, list) else not (gaps and gaps[-1][1] is None)
+            out[src.name] = {"streams": [s.name for s in src.streams()], "error": run.error,
+                             "ended": run.ended_on_its_own, "connected": connected,
+                             "disconnects": len(gaps) if isinstance(gaps, list) else 0}
+        return out
 
     # -- consumer side -------------------------------------------------------------------
     def _handle(self, arrival: _Arrival) -> None:
@@ -258,6 +278,7 @@ class Pipeline:
             run.error = f"{type(exc).__name__}: {exc}"
             log.error("source %s stopped: %s", run.source.name, run.error)
         finally:
+            run.ended_on_its_own = not stop.is_set()
             run.done.set()
             run.ring.close()
 
