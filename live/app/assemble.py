@@ -31,9 +31,12 @@ class RunOptions:
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` -> (host, port); an IPv6 address in brackets: ``[::1]:39539``."""
     host, sep, port = text.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
     if not sep or not port.isdigit() or not host:
-        raise UserInputError(f"--vmc wants HOST:PORT (e.g. 127.0.0.1:39539), not {text!r}")
+        raise UserInputError(f"--vmc wants HOST:PORT (e.g. 127.0.0.1:39539 or [::1]:39539), not {text!r}")
     return host, int(port)
 
 
