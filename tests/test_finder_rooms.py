@@ -42,7 +42,6 @@ def _in_view(joints: np.ndarray, scene: SyntheticScene) -> bool:
     return int(inside.sum()) >= IN_VIEW_JOINTS
 
 
-@pytest.mark.xfail(strict=False, reason="the person finder needs a visible floor or extrinsics (being rewritten)")
 @pytest.mark.parametrize("room", ROOMS, ids=[r[0] for r in ROOMS])
 def test_the_performer_is_found_in_every_frame_in_view(room, shared_bvh):
     _, clip, body, posture, distance, height, pitch, yaw, floor = room

@@ -29,6 +29,9 @@ LEVEL_UP = np.array([0.0, -1.0, 0.0])
 ASSUMED_STATURE_M = 1.70
 #: A cluster at least this tall is a whole body: its lowest points are the feet.
 WHOLE_BODY_M = 1.35
+#: A cluster ending inside the image and at least this tall stands on its feet (a crouch, a
+#: seated performer seen whole); shorter, it may be an upper body behind a desk.
+CROUCH_M = 0.9
 
 
 def camera_to_world_from_up(up_cam: np.ndarray, height_m: float) -> np.ndarray:
@@ -120,11 +123,14 @@ def body_up(points_world: np.ndarray, up: np.ndarray, max_tilt_deg: float = 25.0
     return axis if tilt_deg(axis, up) <= max_tilt_deg else None
 
 
-def floor_under_person(y_low: float, y_top: float) -> float:
+def floor_under_person(y_low: float, y_top: float, cut_below: bool = False) -> float:
     """The floor's height (in the current world y) under a person whose points span y_low..y_top
-    with no floor in view: under their feet when the whole body is seen, else ASSUMED_STATURE_M
-    below the top of their head."""
-    if y_top - y_low >= WHOLE_BODY_M:
+    with no floor in view: under their feet when the body ends inside the image (not
+    ``cut_below`` by its bottom edge) and is at least a crouch's height, or when the whole body
+    is seen; else (a close-up, an upper body behind a desk) ASSUMED_STATURE_M below the top of
+    their head."""
+    extent = y_top - y_low
+    if extent >= WHOLE_BODY_M or (not cut_below and extent >= CROUCH_M):
         return y_low
     return min(y_low, y_top - ASSUMED_STATURE_M)
 

@@ -39,14 +39,20 @@ def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, ey
 
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
                         last_center: np.ndarray | None, moving: np.ndarray | None = None,
-                        cut_below: np.ndarray | None = None
-                        ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
+                        cut_below: np.ndarray | None = None, cut_above: np.ndarray | None = None,
+                        floor_known: bool = True) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
     """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
     the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
     moving: (M,) bool, points whose depth changed lately (``PersonFinder._moved``), or None when not
     known; last_center: the previous person's (x, z), or None; cut_below: (M,) bool, points on the
     image's bottom edge, or None: a cluster holding some goes on below the view (a seated
-    performer's close-up, legs out of frame), so its height counts from the floor."""
+    performer's close-up, legs out of frame), so its height counts from the floor; cut_above:
+    (M,) bool, points on the image's top edge, or None: a cluster holding some has its top out of
+    view (a low camera looking down), so its top's shape says nothing. The cluster of the
+    previous person (tracked) passes the top test at half its threshold: a raised arm or a turn
+    that widens the top for a frame does not lose them. floor_known: False when no floor is in view
+(heights are then above the lowest points seen, not above a floor): the height limit applies
+to a cluster's own extent."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -97,6 +103,7 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
         weight = cfg.static_weight + (1.0 - cfg.static_weight) * np.clip(share, 0.0, 1.0)
     bound = counts * 1.8 ** 2 * weight
     order = np.argsort(-bound, kind="stable")
+    tracked = 0
     if last_center is not None:
         # The previous person's label first (the grid is centred on them): their score then
         # prunes the others by their distance to it, from their boxes alone.
@@ -131,17 +138,20 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
         cluster = pts[:, sel]
         ys = cluster[1]
         y_lo, y_hi = _quantiles(ys, (0.01, 0.99))
+        seen = float(y_hi - y_lo)
+        height = seen
         if cut_below is not None and int(np.count_nonzero(cut_below[sel])) >= 3:
-            y_lo = min(y_lo, 0.0)
-        height = float(y_hi - y_lo)
-        if height < cfg.min_height_m or y_hi > cfg.max_height_m:
+            height = float(y_hi - min(y_lo, 0.0))  # it goes on below the view, down to the floor
+        if height < cfg.min_height_m or (y_hi if floor_known else seen) > cfg.max_height_m:
             continue  # too flat to be a person, or a wall / door frame seen edge-on
         # Prefer many points, tall clusters (furniture is rarely taller than 1.2 m), shapes
         # narrower at the top than overall (a head, not the edge of a box or a table top),
         # and the previous person's position.
         c = np.array([_quantiles(cluster[0], (0.5,))[0], _quantiles(cluster[2], (0.5,))[0]])
         narrow = _narrow_top(cluster, ys, y_hi, c, eye_xz)
-        if narrow < cfg.min_narrow_top:
+        if cut_above is not None and int(np.count_nonzero(cut_above[sel])) >= 3:
+            narrow = max(narrow, cfg.min_narrow_top)  # the top is out of view
+        if narrow < (cfg.min_narrow_top / 2 if lab == tracked else cfg.min_narrow_top):
             continue  # flat-topped: furniture (this also rejects a person lying down)
         score = counts[lab] * min(height, 1.8) ** 2 * narrow
         if moving is not None:

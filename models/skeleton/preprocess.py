@@ -115,6 +115,7 @@ class _Search:
     origin: np.ndarray
     person: np.ndarray
     c2w: np.ndarray
+    cut_below: bool = False  # the person reaches the image's bottom edge
 
     @cached_property
     def person_pixels(self) -> np.ndarray:
@@ -316,7 +317,7 @@ class PersonFinder:
         camera_to_world and the person's points (3, P) at that floor."""
         person = found.person
         y_low, y_top = (float(v) for v in np.quantile(person[1], (0.01, 0.99)))
-        height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top)
+        height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top, found.cut_below)
         self._height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
         c2w = found.c2w.copy()
         c2w[1, 3] = self._height_est
@@ -344,13 +345,18 @@ class PersonFinder:
         if depths is not None and pixels is not None:
             moving = self._moved(depths, pixels[above])
         width = -(-frame.depth_mm.shape[1] // s) if frame.depth_mm is not None else 0
-        cut_below = None
-        if pixels is not None:
+        cut_below = cut_above = None
+        if pixels is not None:  # the two bottom and the two top rows of the strided image
             rows = -(-frame.depth_mm.shape[0] // s)
-            cut_below = pixels[above] >= (rows - 2) * width  # the two bottom rows of the strided image
+            cut_below = pixels[above] >= (rows - 2) * width
+            cut_above = pixels[above] < 2 * width
         got = find_person_cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points, self.config,
-                                  self._last_center, moving=moving, cut_below=cut_below)
-        return None if got is None else _Search(world, pixels, width, above, *got, c2w)
+                                  self._last_center, moving=moving, cut_below=cut_below, cut_above=cut_above,
+                                  floor_known=not self._no_floor)
+        if got is None:
+            return None
+        cut = cut_below is not None and int(np.count_nonzero(cut_below[got[0]])) >= 3
+        return _Search(world, pixels, width, above, *got, c2w, cut)
 
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
         """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by
