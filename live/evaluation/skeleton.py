@@ -11,6 +11,7 @@ reference PointNet (models/weights/skeleton_baseline.onnx) beside the shipped mo
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,22 +24,55 @@ from live.core.skeleton import JOINT_NAMES
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonStage
 
 
-def session_frames(path: str | Path) -> list[tuple[DepthFrame, GroundTruth]]:
-    """(depth frame, ground truth at the same t_ns) pairs of a session, in time order."""
+@dataclass
+class EvalSession:
+    """A session read for evaluation: (depth frame, ground truth at the same t_ns) pairs and the
+    side frames (the camera's IMU, a suit) in time order; true_camera_to_world: the camera's
+    real extrinsics when the depth stream withholds them (a session made with hidden
+    extrinsics keeps them in its gt stream's metadata), else None."""
+
+    pairs: list[tuple[DepthFrame, GroundTruth]]
+    side: list[tuple[int, object]] = field(default_factory=list)
+    true_camera_to_world: np.ndarray | None = None
+
+
+def read_eval_session(path: str | Path) -> EvalSession:
+    """A session's depth / ground-truth pairs, side frames and true extrinsics (see EvalSession)."""
     from live.io.session import SessionReader
 
     reader = SessionReader(path)
     truth: dict[int, GroundTruth] = {}
     depth: list[DepthFrame] = []
-    for _, frame in reader.frames():
+    side: list[tuple[int, object]] = []
+    true_c2w = None
+    for stream, frame in reader.frames():
         if isinstance(frame, GroundTruth):
             truth[frame.t_ns] = frame
+            if true_c2w is None and "camera_to_world" in stream.meta:
+                true_c2w = np.asarray(stream.meta["camera_to_world"], np.float64)
         elif isinstance(frame, DepthFrame):
             depth.append(frame)
+        else:
+            side.append((int(getattr(frame, "t_ns", 0)), frame))
     pairs = [(d, truth[d.t_ns]) for d in depth if d.t_ns in truth]
     if not pairs:
         raise UserInputError(f"{Path(path).name}: no depth frames with ground truth (not a synthetic session?)")
-    return pairs
+    return EvalSession(pairs, side, true_c2w)
+
+
+def session_frames(path: str | Path) -> list[tuple[DepthFrame, GroundTruth]]:
+    """(depth frame, ground truth at the same t_ns) pairs of a session, in time order."""
+    return read_eval_session(path).pairs
+
+
+def truth_in_solved_frame(truth_joints: np.ndarray, solved_c2w: np.ndarray | None,
+                          true_c2w: np.ndarray | None) -> np.ndarray:
+    """The true joints (J, 3) in the world frame a skeleton was solved in: moved through the camera
+    (solved_c2w @ inverse(true_c2w)) when the stage estimated its own extrinsics, else as they are."""
+    if solved_c2w is None or true_c2w is None:
+        return truth_joints
+    m = np.asarray(solved_c2w, np.float64) @ np.linalg.inv(true_c2w)
+    return np.asarray(truth_joints, np.float64) @ m[:3, :3].T + m[:3, 3]
 
 
 def _acc_error(pred: np.ndarray, gt: np.ndarray, t_ns: np.ndarray) -> float | None:
@@ -56,16 +90,23 @@ def _acc_error(pred: np.ndarray, gt: np.ndarray, t_ns: np.ndarray) -> float | No
     return float(np.average(errs, weights=weights)) if errs else None
 
 
-def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]], model_path: Path,
-                   threads: int = 1, **stage_options) -> dict:
-    """Metrics of one model over already-read sessions (a fresh stage per session)."""
+def evaluate_model(sessions: list[EvalSession], model_path: Path, threads: int = 1, **stage_options) -> dict:
+    """Metrics of one model over already-read sessions (a fresh stage per session; side frames
+    such as the camera's IMU observed in time order; the truth moved into the frame each
+    skeleton was solved in when the session withholds its extrinsics)."""
     preds, gts, latency = [], [], []
     acc, acc_w, missing, frames = [], [], 0, 0
-    for pairs in pairs_per_session:
+    for session in sessions:
+        pairs = session.pairs
         stage = SkeletonStage(model_path, threads, **stage_options)
         truth_at = {depth.t_ns: truth for depth, truth in pairs}
         p_s, g_s, t_s = [], [], []
+        side = iter(session.side)
+        pending = next(side, None)
         for depth, _ in pairs:
+            while pending is not None and pending[0] <= depth.t_ns:
+                stage.observe(pending[1])
+                pending = next(side, None)
             t0 = time.perf_counter()
             skel = stage.estimate(depth)
             latency.append((time.perf_counter() - t0) * 1e3)
@@ -75,7 +116,8 @@ def evaluate_model(pairs_per_session: list[list[tuple[DepthFrame, GroundTruth]]]
                 continue
             # A lagging temporal model estimates an earlier frame: score it against that one.
             p_s.append(skel.joints)
-            g_s.append(truth_at[skel.t_ns].joints)
+            g_s.append(truth_in_solved_frame(truth_at[skel.t_ns].joints, skel.camera_to_world,
+                                             session.true_camera_to_world))
             t_s.append(skel.t_ns)
         if p_s:
             p, g = np.asarray(p_s, np.float64), np.asarray(g_s, np.float64)
@@ -106,7 +148,7 @@ def evaluate_sessions(paths: list[str | Path], model_path: str | Path | None = N
     ["baseline": metrics]}}. stage_options go to SkeletonStage (min_cutoff, beta, filter, ...)."""
     if not paths:
         raise UserInputError("no session to evaluate")
-    sessions = [session_frames(p) for p in paths]
+    sessions = [read_eval_session(p) for p in paths]
     models = {"ours": Path(model_path) if model_path is not None else DEFAULT_MODEL}
     if compare_baseline:
         models["baseline"] = BASELINE_MODEL

@@ -12,7 +12,14 @@ from live.core.metrics import mpjpe, pa_mpjpe, pck
 
 class AccuracySink:
     """Scores each skeleton against the ground truth of its own t_ns: the frame's, or with a
-    lagging temporal model that of an earlier frame (the last ``keep`` truths are kept)."""
+    lagging temporal model that of an earlier frame (the last ``keep`` truths are kept).
+    ``true_camera_to_world``: the camera's real extrinsics when the depth stream withholds them
+    (``set_true_camera``); each truth is then moved into the frame its skeleton was solved in."""
+
+    true_camera_to_world: np.ndarray | None = None
+
+    def set_true_camera(self, camera_to_world: np.ndarray | None) -> None:
+        self.true_camera_to_world = None if camera_to_world is None else np.asarray(camera_to_world, np.float64)
 
     def __init__(self, keep: int = 64) -> None:
         self.pred: list[np.ndarray] = []
@@ -29,7 +36,12 @@ class AccuracySink:
                 self._truth.popitem(last=False)
         if result.skeleton is not None and result.skeleton.t_ns in self._truth:
             self.pred.append(np.asarray(result.skeleton.joints, np.float64))
-            self.gt.append(self._truth[result.skeleton.t_ns])
+            truth = self._truth[result.skeleton.t_ns]
+            solved = result.skeleton.camera_to_world
+            if self.true_camera_to_world is not None and solved is not None:
+                m = np.asarray(solved, np.float64) @ np.linalg.inv(self.true_camera_to_world)
+                truth = truth @ m[:3, :3].T + m[:3, 3]
+            self.gt.append(truth)
 
     def close(self) -> None:
         pass
