@@ -37,6 +37,9 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
     stages, sinks, parts = build(_run_options(args, out, video))
+    for stream in source.streams() if hasattr(source, "streams") else []:
+        if stream.kind == "gt" and "camera_to_world" in stream.meta:  # extrinsics withheld from the depth
+            parts["accuracy"].set_true_camera(stream.meta["camera_to_world"])
     only = getattr(args, "only", None)
     if only is not None:
         stages = _capture_mode_stages(only, source, stages, args)
@@ -53,8 +56,10 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
 
 
 def _exit_for(stats: dict) -> int:
-    """EXIT_DATA_LOSS when a replayed session had damaged regions the reader skipped."""
-    damaged = any(src.get("counters", {}).get("damaged_regions") for src in stats["sources"].values())
+    """EXIT_DATA_LOSS when a replayed session had damaged regions the reader skipped, or a depth
+    folder images it could not use."""
+    damaged = any(src.get("counters", {}).get("damaged_regions") or src.get("counters", {}).get("bad_images")
+                  for src in stats["sources"].values())
     return EXIT_DATA_LOSS if damaged else 0
 
 
