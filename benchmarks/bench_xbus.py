@@ -1,15 +1,19 @@
 """Decoder throughput: MTData2 frames/s through XbusParser (goal >= 50k frames/s), and text
 lines/s through LineParser, fed in 4 KiB reads like a busy serial port. Median of 5 runs, with
 the plausibility checks (drivers/plausibility.py, the default) and without them
-(``plausibility=None``), and the ratio of the two medians. Then end to end: a SimulatedSuit in as-fast-as-read mode on a pty -> SerialSource, records/s
-(both sides in one process, so this is a lower bound; median of 3).
+(``plausibility=None``), and the ratio of the two medians (runs interleaved in one process).
+``--baseline DIR`` adds the parsers of another checkout (e.g. ``git worktree add /tmp/old
+COMMIT``), loaded under other module names into the same process. Then end to end: a
+SimulatedSuit in as-fast-as-read mode on a pty -> SerialSource, records/s (both sides in one
+process, so this is a lower bound; median of 3).
 
-Usage: python benchmarks/bench_xbus.py [--frames 20000]
+Usage: python benchmarks/bench_xbus.py [--frames 20000] [--baseline DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import statistics
 import sys
 import threading
@@ -58,19 +62,32 @@ def lines_stream(n: int, rng: np.random.Generator, fmt: str) -> bytes:
                                 checksum=True) for i in range(n))
 
 
-def rate(make_parser, stream: bytes, n: int, runs: int = 5) -> tuple[float, float, int]:
-    """Records/s with the checks on and off (runs interleaved, so load changes hit both)."""
-    times: dict[bool, list[float]] = {True: [], False: []}
+def load_baseline(root: Path) -> dict[str, type]:
+    """XbusParser and LineParser of another checkout, as modules of their own names."""
+    out = {}
+    for module, cls in (("xbus", "XbusParser"), ("text_lines", "LineParser")):
+        spec = importlib.util.spec_from_file_location(f"baseline_{module}", root / "drivers" / f"{module}.py")
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = mod  # dataclasses look their module up there
+        spec.loader.exec_module(mod)
+        out[cls] = getattr(mod, cls)
+    return out
+
+
+def rate(parsers: dict[str, object], stream: bytes, n: int, runs: int = 5) -> dict[str, float]:
+    """Records/s of each parser factory (runs interleaved, so load changes hit every one)."""
+    times: dict[str, list[float]] = {name: [] for name in parsers}
     for _ in range(runs):
-        for checks in (True, False):
-            parser = make_parser() if checks else make_parser(plausibility=None)
+        for name, make in parsers.items():
+            parser = make()
             t0 = time.perf_counter()
             got = 0
             for i in range(0, len(stream), CHUNK):
                 got += len(parser.feed(stream[i:i + CHUNK]))
-            times[checks].append(time.perf_counter() - t0)
+            times[name].append(time.perf_counter() - t0)
             assert got == n, (got, n, parser.counters)
-    return n / statistics.median(times[True]), n / statistics.median(times[False]), len(stream) // n
+    return {name: n / statistics.median(t) for name, t in times.items()}
 
 
 def end_to_end(protocol: str, runs: int = 3) -> float:
@@ -97,7 +114,9 @@ def end_to_end(protocol: str, runs: int = 3) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20_000)
+    ap.add_argument("--baseline", type=Path, help="another checkout whose parsers to time alongside")
     args = ap.parse_args()
+    baseline = load_baseline(args.baseline) if args.baseline else {}
     rng = np.random.default_rng(0)
     n = args.frames
     cases = {
@@ -108,10 +127,17 @@ def main() -> None:
         "lines csv + acc + checksum": (LineParser, lines_stream(n, rng, "csv")),
         "lines json + acc + checksum": (LineParser, lines_stream(n, rng, "json")),
     }
-    print(f"{'case':36s} {'bytes/rec':>9s} {'records/s, checks on':>21s} {'checks off':>11s} {'on/off':>7s}")
+    print(f"{'case':36s} {'bytes/rec':>9s} {'records/s, checks on':>21s} {'checks off':>11s} {'on/off':>7s}"
+          + (f" {'baseline':>10s} {'on/baseline':>11s}" if baseline else ""))
     for name, (make, stream) in cases.items():
-        on, off, size = rate(make, stream, n)
-        print(f"{name:36s} {size:9d} {on:21,.0f} {off:11,.0f} {on / off:7.2f}")
+        parsers = {"on": make, "off": lambda make=make: make(plausibility=None)}
+        if baseline:
+            parsers["baseline"] = baseline[make.__name__]
+        r = rate(parsers, stream, n)
+        line = f"{name:36s} {len(stream) // n:9d} {r['on']:21,.0f} {r['off']:11,.0f} {r['on'] / r['off']:7.2f}"
+        if baseline:
+            line += f" {r['baseline']:10,.0f} {r['on'] / r['baseline']:11.2f}"
+        print(line)
     for protocol in ("xbus", "lines"):
         print(f"{'pty end to end ' + protocol:36s} {'':9s} {end_to_end(protocol):24,.0f}")
 
