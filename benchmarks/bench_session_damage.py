@@ -3,10 +3,11 @@ readers on hostile and long files.
 
 Run: .venv/bin/python benchmarks/bench_session_damage.py [--kills 5] [--trials 30] [--skip kill,flips,memory]
 
-- kill: ``livecap record`` of a simulated suit (a pty; text lines or Xbus at several rates) is
-  killed with SIGKILL at a random moment 1-3 s in; per run, the seconds between the kill and the
-  last sample in the file, and the bytes the suit had written that the file does not hold
-  (including what was still in the pty). Medians and maxima over the runs.
+- kill: ``livecap record`` of a simulated suit (a pty; text lines or Xbus at several rates), and
+  of the suit with the virtual camera rendering a clip live (``sim:``), is killed with SIGKILL
+  at a random moment 1-3 s in; per run and stream, the seconds between the kill and the
+  stream's last sample in the file, and the bytes the suit had written that the file does not
+  hold (including what was still in the pty). Medians and maxima over the runs.
 - flips: a 45-frame synthetic session (``livecap synth``, 1.5 s) with 1, 5 or 30 random bit
   flips anywhere in the file (seeded); depth frames read back (mean, min) and exceptions raised
   (must be 0).
@@ -70,13 +71,15 @@ def _packets(path: Path):
         return []
 
 
-def kill_once(tmp: Path, protocol: str, rate_hz: float, after_s: float) -> tuple[float, int, float]:
-    """(seconds lost, bytes lost, the suit's byte rate) of one record killed ``after_s`` in."""
+def kill_once(tmp: Path, protocol: str, rate_hz: float, after_s: float, depth: bool) -> dict[str, tuple]:
+    """Per stream (seconds lost, bytes lost or None, byte rate) of one record killed ``after_s``
+    in: a simulated suit, and with ``depth`` the virtual camera rendering a clip live."""
     out = tmp / f"k{time.monotonic_ns()}.mcap"
     motion = random_smooth_motion(240, fps=60.0, seed=1)
     with SimulatedSuit(motion, protocol=protocol, rate_hz=rate_hz, realtime=True, loop=True) as suit:
-        proc = subprocess.Popen(LIVECAP + ["record", "--source", f"serial:{suit.port}:{protocol}", "--out", str(out),
-                                           "--quiet"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        sources = ["--source", f"serial:{suit.port}:{protocol}"] + (["--source", f"sim:{CLIP}"] if depth else [])
+        proc = subprocess.Popen(LIVECAP + ["record", *sources, "--out", str(out), "--quiet"], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         while not (_packets(out) and suit.counters["bytes"] > 0):
             time.sleep(0.02)
         started, sent0 = time.monotonic(), suit.counters["bytes"]
@@ -85,21 +88,34 @@ def kill_once(tmp: Path, protocol: str, rate_hz: float, after_s: float) -> tuple
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
         rate = (sent - sent0) / (time.monotonic() - started)
-    packets = _packets(out)
-    recorded = sum(len(p.raw) for p in packets)
-    return (killed_ns - packets[-1].t_ns) / 1e9, sent - recorded, rate
+    last: dict[str, int] = {}
+    recorded = 0
+    for stream, frame in SessionReader(out).frames():
+        last[f"{stream.kind} {stream.name}"] = frame.t_ns
+        recorded += len(frame.raw) if stream.kind == "serial" else 0
+    return {name: ((killed_ns - t) / 1e9, sent - recorded if name.startswith("serial") else None,
+                   rate if name.startswith("serial") else None) for name, t in last.items()}
 
 
 def bench_kill(kills: int, rng: random.Random) -> None:
-    print("\n## kill -9 during `livecap record` (simulated suit on a pty)")
-    print("| stream | rate | runs | seconds lost: median / max | bytes lost: median / max |")
+    print("\n## kill -9 during `livecap record` (simulated suit on a pty; sim: the virtual camera live)")
+    print("| recording | stream | runs | seconds lost: median / max | bytes lost: median / max |")
     print("|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
-        for protocol, rate_hz in (("lines", 10.0), ("lines", 100.0), ("xbus", 100.0), ("xbus", 400.0)):
-            runs = [kill_once(Path(tmp), protocol, rate_hz, rng.uniform(1.0, 3.0)) for _ in range(kills)]
-            lost_s, lost_b, rate = (np.array([r[i] for r in runs]) for i in range(3))
-            print(f"| {protocol} {rate_hz:.0f} Hz | {np.median(rate) / 1000:.1f} kB/s | {kills} | "
-                  f"{np.median(lost_s):.2f} / {lost_s.max():.2f} s | {np.median(lost_b):.0f} / {lost_b.max():.0f} |")
+        for protocol, rate_hz, depth in (("lines", 10.0, False), ("lines", 100.0, False), ("xbus", 100.0, False),
+                                         ("xbus", 400.0, False), ("xbus", 100.0, True)):
+            runs = [kill_once(Path(tmp), protocol, rate_hz, rng.uniform(1.0, 3.0), depth) for _ in range(kills)]
+            label = f"{protocol} {rate_hz:.0f} Hz" + (" + sim depth" if depth else "")
+            for stream in sorted(runs[0]):
+                lost_s = np.array([r[stream][0] for r in runs if stream in r])
+                cells = f"{np.median(lost_s):.2f} / {lost_s.max():.2f} s"
+                if runs[0][stream][1] is not None:
+                    lost_b = np.array([r[stream][1] for r in runs])
+                    rate = np.median([r[stream][2] for r in runs])
+                    name = f"{stream} ({rate / 1000:.1f} kB/s)"
+                    print(f"| {label} | {name} | {len(lost_s)} | {cells} | {np.median(lost_b):.0f} / {lost_b.max():.0f} |")
+                else:
+                    print(f"| {label} | {stream} | {len(lost_s)} | {cells} | |")
 
 
 # ---------------------------------------------------------------------------------------------

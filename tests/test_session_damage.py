@@ -249,3 +249,27 @@ def test_info_json_lists_the_damage(session, tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["damaged_regions"] == 1 and doc["damage"][0].startswith(f"byte {first.chunk_start_offset}:")
     assert doc["finished"] is True
+
+
+def test_a_timed_replay_does_not_wait_for_an_absurd_timestamp(tmp_path):
+    import threading
+
+    from live.core.frames import MocapPacket
+    from sim.replay import ReplaySource
+
+    path = tmp_path / "jump.mcap"
+    stamps = [0, 10_000_000, 10**18, 20_000_000, 30_000_000]  # one frame 31 years ahead
+    with SessionWriter(path, [StreamInfo("suit", "serial", {})], start_wall_time_ns=0) as w:
+        for t in stamps:
+            w.write(MocapPacket(t_ns=t, device="suit", raw=b"x"))
+    source = ReplaySource(path, speed=1.0)
+    stop = threading.Event()
+    guard = threading.Timer(30.0, stop.set)  # only if the replay waited: the assertion below fails then
+    guard.start()
+    got = []
+    try:
+        source.run(lambda f: got.append(f.t_ns), stop)
+    finally:
+        guard.cancel()
+    assert not stop.is_set() and got == stamps
+    assert source.counters["time_jumps"] == 2  # there and back

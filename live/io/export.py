@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth, MocapPacket
 from live.core.protocols import StreamInfo
 from live.core.text import safe_filename
@@ -147,6 +148,8 @@ def export_session(path: str | Path, out_dir: str | Path) -> tuple[list[Path], s
     """
     reader = SessionReader(path)
     out = Path(out_dir)
+    if reader.path.suffix == ".npz" and reader.path.resolve().parent == out.resolve():
+        raise UserInputError(f"the export into {out} could overwrite its own session {reader.path.name}")
     out.mkdir(parents=True, exist_ok=True)
     spool = Path(tempfile.mkdtemp(prefix=".livecap-export-", dir=out))
     try:

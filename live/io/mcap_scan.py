@@ -60,6 +60,8 @@ _COMPRESSIONS = ("", "zstd", "lz4")
 # below 2^24 * 256 (the five high bytes zero). Zero-width, so candidates may overlap.
 _CANDIDATE = re.compile(rb"(?=[\x06\x09\x0c\x0f][\x00-\xff]{3}\x00{5})", re.DOTALL)
 _NAMES = {int(op): op.name.lower().replace("_", " ") for op in Opcode}
+#: Metadata records livecap writes are a few KB; a resync candidate claiming more is not one.
+_MAX_METADATA_CANDIDATE = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -322,23 +324,25 @@ class McapScan:
         return stop
 
     @staticmethod
-    def _chunk_fields(body: bytes) -> tuple[str, int, int, int]:
-        """(compression, offset of the compressed data, uncompressed size, CRC) of a chunk body
-        whose fields add up to its length; _Malformed otherwise."""
+    def _chunk_fields(buf, at: int = 0, length: int | None = None) -> tuple[str, int, int, int]:
+        """(compression, offset of the compressed data from ``at``, uncompressed size, CRC) of the
+        chunk body of ``length`` bytes at ``buf[at:]``, whose fields add up to its length;
+        _Malformed otherwise. Reads only the fields (not the data)."""
+        length = len(buf) - at if length is None else length
         head = _CHUNK_HEAD.size
-        if len(body) < head + 4:
+        if length < head + 4:
             raise _Malformed("shorter than its fields")
-        _, _, usize, crc = _CHUNK_HEAD.unpack_from(body)
-        (clen,) = struct.unpack_from("<I", body, head)
-        if clen > 8 or len(body) < head + 4 + clen + 8:
+        _, _, usize, crc = _CHUNK_HEAD.unpack_from(buf, at)
+        (clen,) = struct.unpack_from("<I", buf, at + head)
+        if clen > 8 or length < head + 4 + clen + 8:
             raise _Malformed("its fields do not add up")
         try:
-            compression = body[head + 4: head + 4 + clen].decode("ascii")
+            compression = bytes(buf[at + head + 4: at + head + 4 + clen]).decode("ascii")
         except UnicodeDecodeError:
             raise _Malformed("compression name is not text") from None
-        (dlen,) = struct.unpack_from("<Q", body, head + 4 + clen)
+        (dlen,) = struct.unpack_from("<Q", buf, at + head + 4 + clen)
         start = head + 4 + clen + 8
-        if compression not in _COMPRESSIONS or start + dlen != len(body):
+        if compression not in _COMPRESSIONS or start + dlen != length:
             raise _Malformed("its fields do not add up")
         return compression, start, usize, crc
 
@@ -411,17 +415,34 @@ class McapScan:
             return False
         if opcode == Opcode.DATA_END:
             return length == 4
-        body = bytes(self._mm[pos + _HEAD.size: stop])
         try:
             if opcode == Opcode.CHUNK:
-                self._chunk_fields(body)
-            elif opcode == Opcode.METADATA:
+                self._chunk_fields(self._mm, pos + _HEAD.size, length)
+                return True
+            if opcode == Opcode.ATTACHMENT and not self._attachment_fields_add_up(pos + _HEAD.size, length):
+                return False
+            if opcode == Opcode.METADATA and length > _MAX_METADATA_CANDIDATE:
+                return False
+            body = bytes(self._mm[pos + _HEAD.size: stop])
+            if opcode == Opcode.METADATA:
                 _parse(Metadata, body)
             else:
                 self._attachment(body)
-        except _Malformed:
+        except (_Malformed, struct.error):
             return False
         return True
+
+    def _attachment_fields_add_up(self, at: int, length: int) -> bool:
+        """Whether an attachment body's strings and data fill exactly ``length`` bytes (cheap:
+        checked before its CRC is computed)."""
+        mm, off = self._mm, at + 16  # log time, create time
+        for _ in range(2):  # name, media type
+            (n,) = struct.unpack_from("<I", mm, off)
+            off += 4 + n
+            if off > at + length:
+                return False
+        (n,) = struct.unpack_from("<Q", mm, off)
+        return off + 8 + n + 4 == at + length
 
     def close(self) -> None:
         if isinstance(self._mm, mmap.mmap):

@@ -176,8 +176,9 @@ class SessionWriter:
         except SessionError:
             # Over the codec's size limits: a reader would refuse it; counted, not written.
             with self._lock:
-                self._channel(kind, name)
-                self._tallies[(kind, name)].refused += 1
+                if not self._closed:
+                    self._channel(kind, name)
+                    self._tallies[(kind, name)].refused += 1
             return
         t_ns = int(frame.t_ns)
         with self._lock:
