@@ -11,9 +11,7 @@ from live.app.running import (
     EXIT_DATA_LOSS,
     count_trigger_frames,
     parse_speed,
-    refuse_overwriting_inputs,
     run_pipeline,
-    source_inputs,
     write_stats,
 )
 from live.app.sources import open_replay, open_source
@@ -149,7 +147,6 @@ def _report_recording(recording: dict, command: str) -> int:
 
 
 def cmd_record(args) -> int:
-    refuse_overwriting_inputs(args.out, source_inputs(args.source))
     sources = _open_sources(args.source)
     stats = run_pipeline(sources, [], [], mode="latest", record=args.out, seconds=args.seconds,
                          progress=not args.quiet)
@@ -160,8 +157,6 @@ def cmd_record(args) -> int:
 def cmd_run(args) -> int:
     from live.app.assemble import build
 
-    if args.record is not None:
-        refuse_overwriting_inputs(args.record, source_inputs(args.source), "--record")
     sources = _open_sources(args.source)
     stages, sinks, parts = build(_run_options(args, args.out))
     stats = run_pipeline(sources, stages, sinks, mode="latest", record=args.record,

@@ -41,17 +41,6 @@ def refuse_overwriting_inputs(out: Path, inputs: Iterable[str | Path], option: s
                                  "write to another file")
 
 
-def source_inputs(specs: Iterable[str]) -> list[str]:
-    """The files and ports named by source strings (a replayed session, a clip, a port...)."""
-    from drivers.source_url import parse_source
-
-    out: list[str] = []
-    for text in specs:
-        spec = parse_source(text)
-        out += [spec.target] + [v for v in spec.options.values() if isinstance(v, str)]
-    return out
-
-
 @contextmanager
 def stop_on_signals():
     """An Event set by Ctrl-C or SIGTERM; a second Ctrl-C exits at once."""
