@@ -153,9 +153,10 @@ def test_session_metadata_under_a_crc(session, tmp_path, capsys):
     assert r.error and "livecap.session" in r.error
     assert main(["info", str(bad)]) == 1
     assert main(["export", str(bad), "--out", str(tmp_path / "exp")]) == 1
+    assert main(["export", str(bad), "--foxglove", str(tmp_path / "fox.mcap")]) == 1
     assert main(["replay", str(bad), "--out", str(tmp_path / "rep"), "--quiet"]) == 1
     err = [line for line in capsys.readouterr().err.splitlines() if line]
-    assert len(err) == 3 and all("Traceback" not in line for line in err)
+    assert len(err) == 4 and all("Traceback" not in line for line in err)
 
 
 def test_body_attachment_under_its_crc(session, tmp_path, capsys):
