@@ -15,6 +15,7 @@ import math
 import struct
 import threading
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,8 +79,9 @@ def _camera_to_world(value, where: str) -> np.ndarray:
     if m.shape != (4, 4) or not np.isfinite(m).all():
         raise FormatError("camera_to_world must be a 4x4 list of finite numbers", path=where)
     rot = m[:3, :3]
-    if (not np.allclose(m[3], [0, 0, 0, 1]) or not np.allclose(rot.T @ rot, np.eye(3), atol=1e-3)
-            or np.linalg.det(rot) < 0):
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 entries: not rigid, no warning
+        rigid = np.allclose(rot.T @ rot, np.eye(3), atol=1e-3) and np.linalg.det(rot) > 0
+    if not np.allclose(m[3], [0, 0, 0, 1]) or not rigid:
         raise FormatError("camera_to_world must be a rigid transform (a rotation and a translation)", path=where)
     return m
 
@@ -130,6 +132,11 @@ def png_problem(path: Path, width: int, height: int) -> str | None:
             head = f.read(26)
     except OSError as exc:
         return f"unreadable ({exc.strerror or exc})"
+    return png_problem_of_bytes(head, width, height)
+
+
+def png_problem_of_bytes(head: bytes, width: int, height: int) -> str | None:
+    """``png_problem`` of a PNG's first bytes (at least 26)."""
     if len(head) < 26 or not head.startswith(_PNG_SIGNATURE) or head[12:16] != b"IHDR":
         return "not a PNG file"
     w, h, bits, colour = struct.unpack(">IIBB", head[16:26])
@@ -138,6 +145,24 @@ def png_problem(path: Path, width: int, height: int) -> str | None:
     if (w, h) != (width, height):
         return f"{w}x{h}, not the {width}x{height} of intrinsics.json"
     return None
+
+
+def png_chunks_problem(data: bytes) -> str | None:
+    """Why a PNG's bytes are damaged (a chunk running past the end, a chunk CRC that does not
+    match, no IEND), or None. Checked before decoding: libpng would print its own complaint
+    about a damaged stream to stderr, where only livecap's one line belongs."""
+    i = len(_PNG_SIGNATURE)
+    while i + 12 <= len(data):
+        (length,) = struct.unpack_from(">I", data, i)
+        end = i + 12 + length
+        if end > len(data):
+            return f"a PNG chunk at byte {i} runs past the end of the file"
+        if zlib.crc32(data[i + 4:end - 4]) != struct.unpack_from(">I", data, end - 4)[0]:
+            return f"the PNG chunk at byte {i} fails its CRC"
+        if data[i + 4:i + 8] == b"IEND":
+            return None
+        i = end
+    return "the PNG ends before its IEND chunk"
 
 
 class DepthFolderSource:
@@ -183,7 +208,16 @@ class DepthFolderSource:
         if i in self.problems:
             return None
         try:
-            img = cv2.imread(str(self.images[i]), cv2.IMREAD_UNCHANGED)
+            data = self.images[i].read_bytes()
+        except OSError as exc:
+            self.problems[i] = f"unreadable ({exc.strerror or exc})"
+            return None
+        problem = png_problem_of_bytes(data, self.width, self.height) or png_chunks_problem(data)
+        if problem is not None:
+            self.problems[i] = problem
+            return None
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error:
             return None
         if img is None or img.dtype != np.uint16 or img.shape != (self.height, self.width):
@@ -212,9 +246,9 @@ class DepthFolderSource:
         finally:
             bad = self._counters["bad_images"]
             if bad:
-                first = next((f"{self.images[i].name}: {p}" for i, p in self.problems.items()), None)
+                first = min(self.problems.items(), default=None)
                 self.error = (f"{self.folder}: skipped {bad} of {len(self.images)} images"
-                              + (f" (first: {first})" if first else " (not decodable)"))
+                              + (f" (first: {self.images[first[0]].name}: {first[1]})" if first else " (not decodable)"))
 
 
-__all__ = ["DepthFolderSource", "FolderMeta", "png_problem", "read_folder_meta"]
+__all__ = ["DepthFolderSource", "FolderMeta", "png_chunks_problem", "png_problem", "read_folder_meta"]

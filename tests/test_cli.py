@@ -40,7 +40,7 @@ def test_replay_writes_stats(tmp_path, capsys):
         assert key in first["latency_ms"]
 
 
-def test_replay_of_depth_folder(tmp_path):
+def test_replay_of_depth_folder(tmp_path, capsys):
     folder = tmp_path / "depth"
     folder.mkdir()
     rng = np.random.default_rng(0)
@@ -49,7 +49,10 @@ def test_replay_of_depth_folder(tmp_path):
     (folder / "0003.png").write_bytes(b"garbage, not a png")  # counted, skipped
     (folder / "intrinsics.json").write_text(json.dumps({"fx": 200, "fy": 200, "cx": 32, "cy": 20,
                                                         "width": 64, "height": 40, "fps": 15}))
-    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    # A skipped image is data lost: exit 1 and one line naming it; the other frames replay.
+    assert main(["replay", str(folder), "--out", str(tmp_path / "out"), "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "skipped 1 of 5 images" in err[0] and "0003.png: not a PNG file" in err[0]
     stats = json.loads((tmp_path / "out" / "stats.json").read_text())
     assert stats["frames"] == 4
     assert stats["sources"]["depth"]["counters"]["bad_images"] == 1

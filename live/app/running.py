@@ -94,7 +94,9 @@ def count_trigger_frames(path: Path) -> int | None:
     if summary is None or summary.statistics is None:
         return None
     counts = summary.statistics.channel_message_counts
-    return sum(n for cid, n in counts.items() if summary.channels[cid].metadata.get("kind") == "depth") or None
+    # A damaged summary may count channels it does not hold: only a total for progress, so skip them.
+    kinds = {cid: channel.metadata.get("kind") for cid, channel in summary.channels.items()}
+    return sum(n for cid, n in counts.items() if kinds.get(cid) == "depth") or None
 
 
 def write_stats(out_dir: Path, stats: dict) -> Path:

@@ -13,6 +13,7 @@ import functools
 import io
 import json
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -207,7 +208,7 @@ def _npz_arrays(source, where: str) -> dict:
             return arrays
     except FormatError:
         raise
-    except zipfile.BadZipFile:
+    except zipfile.BadZipFile as exc:
         head = b""
         try:
             if hasattr(source, "seek"):
@@ -220,10 +221,12 @@ def _npz_arrays(source, where: str) -> dict:
             pass
         if head == b"\x93NUMPY":
             raise FormatError("a body file is an .npz archive, not a single .npy array", path=where) from None
+        if head.startswith(b"PK"):
+            raise FormatError(f"not a readable body file (a damaged zip archive: {exc})", path=where) from None
         raise FormatError("not a readable body file (not a zip archive)", path=where) from None
-    except (OSError, ValueError, EOFError, zipfile.LargeZipFile, NotImplementedError, RuntimeError) as exc:
-        # ValueError covers bad headers and pickled (object) arrays; NotImplementedError and
-        # RuntimeError unsupported or encrypted zip members.
+    except (OSError, ValueError, EOFError, zlib.error, zipfile.LargeZipFile, NotImplementedError, RuntimeError) as exc:
+        # ValueError covers bad headers and pickled (object) arrays; zlib.error a damaged
+        # compressed member; NotImplementedError and RuntimeError unsupported or encrypted ones.
         raise FormatError(f"not a readable body file ({type(exc).__name__}: {exc})", path=where) from None
 
 

@@ -38,6 +38,9 @@ MAX_BVH_FRAMES = 500_000
 MAX_BVH_VALUES = 64_000_000
 MIN_FRAME_TIME_S, MAX_FRAME_TIME_S = 1e-4, 10.0
 MAX_CLIP_SECONDS = 24 * 3600.0
+#: Largest magnitude of an OFFSET or a motion value (file units or degrees): no length or angle
+#: is larger, and 1e308 would overflow to inf in the first product.
+MAX_BVH_MAGNITUDE = 1e9
 
 
 def read_bvh(path: str | Path, *, scale: float | str = 1.0) -> BvhClip:
@@ -182,6 +185,9 @@ def _floats(tok: list[str], n: int, what: str, where: str, lineno: int) -> tuple
                           line=lineno) from None
     if not all(np.isfinite(vals)):
         raise FormatError(f"{what} is not finite: {' '.join(tok)!r}", path=where, line=lineno)
+    if max(abs(v) for v in vals) > MAX_BVH_MAGNITUDE:
+        raise FormatError(f"{what} has a value beyond ±{MAX_BVH_MAGNITUDE:g}: {' '.join(tok)!r}", path=where,
+                          line=lineno)
     return vals
 
 
@@ -261,7 +267,8 @@ def _parse_motion_rows(body: str, start: int, frames: int, ncols: int,
             values = np.fromstring(body, dtype=np.float64, sep=" ")
     except ValueError:
         values = np.zeros(0)
-    if values.size == frames * ncols and np.isfinite(values).all():
+    if values.size == frames * ncols and np.isfinite(values).all() and \
+            (values.size == 0 or np.abs(values).max() <= MAX_BVH_MAGNITUDE):
         return values.reshape(frames, ncols)
     # Slow path: find the first offending line.
     row = 0
@@ -285,6 +292,8 @@ def _parse_motion_rows(body: str, start: int, frames: int, ncols: int,
                               line=lineno) from None
         if not np.isfinite(vals).all():
             raise FormatError(f"frame {row} has a NaN or infinite value", path=where, line=lineno)
+        if np.abs(vals).max() > MAX_BVH_MAGNITUDE:
+            raise FormatError(f"frame {row} has a value beyond ±{MAX_BVH_MAGNITUDE:g}", path=where, line=lineno)
         row += 1
     raise FormatError(f"truncated MOTION: {row} of {frames} frames", path=where,
                       line=start + len(lines))
