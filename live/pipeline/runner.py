@@ -30,6 +30,8 @@ from live.pipeline.stats import LatencyRecorder, StageStats
 log = logging.getLogger("livecap.pipeline")
 
 MODES = ("every", "latest")
+#: A sensor timestamp older than this is not on the host clock (a replayed or simulated source).
+_HOST_CLOCK_MAX_AGE_NS = 10_000_000_000
 _POLL_S = 0.05
 
 
@@ -87,6 +89,7 @@ class Pipeline:
         self.trigger = DepthFrame if "depth" in kinds or not kinds else MocapPacket
         self.stage_stats = {s.name: StageStats(s.name) for s in self.stages}
         self.end_to_end = LatencyRecorder()
+        self._not_host_clock = 0  # latest mode: frames timed from arrival, their stamps not on this host's clock
         self.queue_wait = LatencyRecorder()
         self.sink_errors = 0
         self.processed = 0
@@ -177,9 +180,17 @@ class Pipeline:
         self._run_stages(result, self.stages)
         self._send(result)
         now = time.monotonic_ns()
-        # Live: from the sensor timestamp (what a performer feels). Replay: recorded timestamps
-        # are from another day and frames queue on purpose, so from the start of processing.
-        origin = started_ns if self.mode == "every" else frame.t_ns
+        # Live: from the sensor timestamp (what a performer feels), when it is on this host's
+        # monotonic clock (drivers stamp frames so); a replayed or simulated source in `run`
+        # carries timestamps from another clock, so from the frame's arrival. Replay: recorded
+        # timestamps are from another day and frames queue on purpose, so from the start of processing.
+        if self.mode == "every":
+            origin = started_ns
+        elif 0 <= now - frame.t_ns <= _HOST_CLOCK_MAX_AGE_NS:
+            origin = frame.t_ns
+        else:
+            origin = arrival.arrived_ns
+            self._not_host_clock += 1
         self.end_to_end.add((now - origin) / 1e6)
         if self.mode == "every":
             self.queue_wait.add((started_ns - arrival.arrived_ns) / 1e6)
@@ -351,6 +362,15 @@ class Pipeline:
             out["details"] = details
         return out
 
+    def _latency_origin(self) -> str:
+        if self.mode == "every":
+            return "processing start"
+        if self._not_host_clock == 0:
+            return "sensor timestamp"
+        if self._not_host_clock >= self.end_to_end.count:
+            return "arrival (timestamps not on this host's clock)"
+        return f"sensor timestamp, arrival for {self._not_host_clock} frames not on this host's clock"
+
     def stats(self) -> dict:
         sources = {}
         overwritten = 0
@@ -369,7 +389,7 @@ class Pipeline:
             "sources": sources,
             "stages": {stage.name: self._stage_dict(stage) for stage in self.stages},
             "end_to_end": {"frames": self.end_to_end.count, "latency_ms": self.end_to_end.summary(),
-                           "origin": "processing start" if self.mode == "every" else "sensor timestamp"},
+                           "origin": self._latency_origin()},
             "ring_wait_ms": self.queue_wait.summary(),
             "drops": {"ring_overwrites": overwritten, "skipped_for_latest": self.skipped_latest},
             "sink_errors": self.sink_errors,
