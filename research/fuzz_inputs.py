@@ -12,6 +12,7 @@ run in-process through the commands that read it (live.app.cli.main) and judged:
              per-command time limit).
 
     python -m research.fuzz_inputs [--cases 300] [--formats session,bvh,folder,npz,serial] [--seed 0] [--json F]
+    python -m research.fuzz_inputs --memory     # peak RSS on small files declaring huge sizes
 
 The tests (tests/test_fuzz_inputs.py, tests/test_fuzz_sessions.py) run a few dozen cases per
 format; this script runs as many as asked and prints, per format, the cases tried, the outcomes
@@ -30,10 +31,12 @@ import random
 import resource
 import shutil
 import signal
+import subprocess
 import sys
 import tempfile
 import time
 import traceback
+import zipfile
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -385,6 +388,68 @@ def summarise(results: list[CaseResult]) -> dict:
             for fmt, d in by_format.items()}
 
 
+def hostile_files(bases: Bases) -> dict[str, list]:
+    """Small files declaring huge sizes, and the intact inputs, as (label -> livecap arguments)."""
+    w = bases.work / "hostile"
+    w.mkdir(exist_ok=True)
+    bomb = w / "bomb.npz"
+    with zipfile.ZipFile(bomb, "w") as z:
+        z.writestr("vertices.npy", mut.npy_header("<f4", (1 << 40, 3)))
+    ply = w / "bomb.ply"
+    ply.write_text("ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty float x\n"
+                   "property float y\nproperty float z\nend_header\n")
+    head, _, _ = bases.bvh_text.partition("MOTION")
+    row = bases.bvh_text.strip().splitlines()[-1]
+    long_clip = w / "frame_time.bvh"
+    long_clip.write_text(head + "MOTION\nFrames: 10\nFrame Time: 1000000\n" + "\n".join([row] * 10) + "\n")
+    many = w / "frames.bvh"
+    many.write_text(head + "MOTION\nFrames: 100000000000\nFrame Time: 0.0083333\n" + "\n".join([row] * 10) + "\n")
+    wide = w / "wide"
+    wide.mkdir(exist_ok=True)
+    (wide / "intrinsics.json").write_text(json.dumps(dict(bases.folder_meta, width=10**9, height=10**9)))
+    (wide / "0000.png").write_bytes(bases.folder_images[0])
+    png = w / "png_bomb"
+    png.mkdir(exist_ok=True)
+    (png / "intrinsics.json").write_text(json.dumps(dict(bases.folder_meta, width=8192, height=4096)))
+    (png / "0000.png").write_bytes(mut.png_ihdr(8192, 4096, 16, 0) + bases.folder_images[0][33:])
+    folder = w / "folder"
+    folder.mkdir(exist_ok=True)
+    (folder / "intrinsics.json").write_text(json.dumps(bases.folder_meta))
+    for i, img in enumerate(bases.folder_images):
+        (folder / f"{i:04d}.png").write_bytes(img)
+    out = w / "out"
+    return {
+        "session, intact (replay)": ["replay", bases.session, "--out", out, "--quiet"],
+        "body .npz declaring (2^40, 3) float32, 12 TiB (replay --avatar)":
+            ["replay", bases.session, "--out", out, "--quiet", "--avatar", bomb],
+        "PLY declaring 2e9 vertices (replay --avatar)": ["replay", bases.session, "--out", out, "--quiet", "--avatar", ply],
+        "body preset (replay --avatar)": ["replay", bases.session, "--out", out, "--quiet", "--avatar", "default"],
+        "BVH, Frame Time 1000000 (synth)": ["synth", "--motion", long_clip, "--out", w / "a.mcap", "--force", "--quiet"],
+        "BVH, Frames 1e11 (synth)": ["synth", "--motion", many, "--out", w / "a.mcap", "--force", "--quiet"],
+        "BVH, 30 frames intact (synth)": ["synth", "--motion", bases.work / "clip.bvh", "--out", w / "a.mcap", "--force",
+                                          "--quiet"],
+        "depth folder, intrinsics 1e9 x 1e9 (replay)": ["replay", wide, "--out", out, "--quiet"],
+        "depth folder, a PNG declaring 8192 x 4096 (replay)": ["replay", png, "--out", out, "--quiet"],
+        "depth folder, 4 images intact (replay)": ["replay", folder, "--out", out, "--quiet"],
+    }
+
+
+def measure_memory(bases: Bases) -> list[dict]:
+    """Peak RSS (GNU time) and exit status of the CLI, in its own process, on hostile_files."""
+    (bases.work / "clip.bvh").write_text(bases.bvh_text)
+    rows = []
+    for label, args in hostile_files(bases).items():
+        cmd = ["/usr/bin/time", "-f", "%M", sys.executable, "-m", "live.app.cli", *map(str, args)]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        lines = [ln for ln in proc.stderr.strip().splitlines() if not ln.startswith("Command exited")]
+        rss = int(lines[-1]) / 1024 if lines and lines[-1].isdigit() else float("nan")
+        rows.append({"input": label, "status": proc.returncode, "peak_rss_mb": round(rss),
+                     "stderr": lines[:-1]})
+        message = " | ".join(lines[:-1])
+        print(f"{label:65s} exit {proc.returncode}  {rss:5.0f} MB  {message[:150]}", flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     from live.core import assets
 
@@ -394,6 +459,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clip", type=Path, default=assets.shared_data_dir() / "bvh" / "mb_12_01.bvh")
     p.add_argument("--json", type=Path, default=None, help="also write every case's result here")
+    p.add_argument("--memory", action="store_true", help="instead: peak memory of the CLI on small files "
+                   "declaring huge sizes, each in its own process (GNU time)")
     args = p.parse_args(argv)
     formats = [f for f in args.formats.split(",") if f]
     unknown = set(formats) - set(FORMATS)
@@ -403,6 +470,11 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="livecap-fuzz-") as tmp:
         t0 = time.perf_counter()
         bases = build_bases(Path(tmp), args.clip)
+        if args.memory:
+            rows = measure_memory(bases)
+            if args.json is not None:
+                args.json.write_text(json.dumps(rows, indent=1))
+            return 0
         for fmt in formats:
             t = time.perf_counter()
             found = fuzz(bases, fmt, args.cases, args.seed)

@@ -147,11 +147,18 @@ def png_problem_of_bytes(head: bytes, width: int, height: int) -> str | None:
     return None
 
 
-def png_chunks_problem(data: bytes) -> str | None:
-    """Why a PNG's bytes are damaged (a chunk running past the end, a chunk CRC that does not
-    match, no IEND), or None. Checked before decoding: libpng would print its own complaint
-    about a damaged stream to stderr, where only livecap's one line belongs."""
+#: Deflate's largest compression ratio: image data this many times smaller than the raw pixels
+#: cannot hold them.
+_DEFLATE_MAX_RATIO = 1032
+
+
+def png_chunks_problem(data: bytes, width: int, height: int) -> str | None:
+    """Why a 16-bit grayscale PNG's bytes are damaged (a chunk running past the end, a chunk CRC
+    that does not match, no IEND, too little image data for width x height), or None. Checked
+    before decoding: libpng would print its own complaint about a damaged stream to stderr,
+    where only livecap's one line belongs."""
     i = len(_PNG_SIGNATURE)
+    image_bytes = 0
     while i + 12 <= len(data):
         (length,) = struct.unpack_from(">I", data, i)
         end = i + 12 + length
@@ -159,7 +166,12 @@ def png_chunks_problem(data: bytes) -> str | None:
             return f"a PNG chunk at byte {i} runs past the end of the file"
         if zlib.crc32(data[i + 4:end - 4]) != struct.unpack_from(">I", data, end - 4)[0]:
             return f"the PNG chunk at byte {i} fails its CRC"
-        if data[i + 4:i + 8] == b"IEND":
+        kind = data[i + 4:i + 8]
+        if kind == b"IDAT":
+            image_bytes += length
+        if kind == b"IEND":
+            if image_bytes * _DEFLATE_MAX_RATIO < height * (1 + 2 * width):
+                return f"{image_bytes} bytes of image data cannot hold {width}x{height} pixels"
             return None
         i = end
     return "the PNG ends before its IEND chunk"
@@ -212,7 +224,7 @@ class DepthFolderSource:
         except OSError as exc:
             self.problems[i] = f"unreadable ({exc.strerror or exc})"
             return None
-        problem = png_problem_of_bytes(data, self.width, self.height) or png_chunks_problem(data)
+        problem = png_problem_of_bytes(data, self.width, self.height) or png_chunks_problem(data, self.width, self.height)
         if problem is not None:
             self.problems[i] = problem
             return None
