@@ -26,7 +26,11 @@ def bases(shared_bvh):
 
 
 #: Cases the long run (``python -m research.fuzz_inputs``, seed 0) once failed, kept: (seed, case, what it was).
-REGRESSIONS = [(0, 68, "a channel record's opcode damaged: the summary counts a channel it lacks (KeyError)")]
+REGRESSIONS = [(0, 68, "a channel record's opcode damaged: the summary counts a channel it lacks (KeyError)"),
+               (1, 62, "a message index record whose opcode became 0x05 (message) after the last chunk")]
+#: {(seed, case): why} of REGRESSIONS not fixed yet (xfail, strict).
+KNOWN_REGRESSIONS = {(1, 62): "the reader takes a top-level message record after the chunks as data: one suit "
+                              "read too many, exit 0 (info --json: 256 of 255 messages)"}
 
 
 def _params():
@@ -34,7 +38,9 @@ def _params():
         marks = [pytest.mark.xfail(reason=KNOWN_FAILURES[k], strict=True)] if k in KNOWN_FAILURES else []
         yield pytest.param(SEED, k, id=str(k), marks=marks)
     for seed, k, _ in REGRESSIONS:
-        yield pytest.param(seed, k, id=f"seed{seed}-{k}")
+        why = KNOWN_REGRESSIONS.get((seed, k))
+        marks = [pytest.mark.xfail(reason=why, strict=True)] if why else []
+        yield pytest.param(seed, k, id=f"seed{seed}-{k}", marks=marks)
 
 
 @pytest.mark.parametrize("seed, case", list(_params()))
