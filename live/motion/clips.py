@@ -11,9 +11,9 @@ from live.core.errors import UserInputError
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import quat_slerp
 
-#: Most frames ``resample`` makes (docs/reliability.md): 4.6 hours at 30 fps, about 0.6 GB
+#: Most frames ``resample`` makes (docs/reliability.md): 2 hours at 30 fps, 0.87 GB at the peak
 #: while resampling. A clip's length times the new rate is checked before anything is allocated.
-MAX_RESAMPLED_FRAMES = 500_000
+MAX_RESAMPLED_FRAMES = 216_000
 
 
 @dataclass(frozen=True)
