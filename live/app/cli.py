@@ -11,7 +11,7 @@ from pathlib import Path
 from live import __version__
 from live.app import arguments as arg
 from live.core.errors import LivecapError
-from live.core.text import PrintableWriter, printable
+from live.core.text import PrintableWriter, printable, printable_text
 
 EXIT_USER_ERROR = 2
 LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shipped smoother temporal model, "
@@ -26,6 +26,13 @@ class LivecapParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {printable(message)} (see {self.prog} --help)\n")
+
+
+class PrintableFormatter(logging.Formatter):
+    """Log lines with escape sequences shown as text (live.core.text.printable_text)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return printable_text(super().format(record))
 
 
 def _add_replay_options(p: argparse.ArgumentParser) -> None:
@@ -243,7 +250,9 @@ def main(argv: list[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # a bad option (one line printed), --help or --version
         return exc.code if isinstance(exc.code, int) else EXIT_USER_ERROR
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="livecap: %(message)s")
+    handler = logging.StreamHandler()
+    handler.setFormatter(PrintableFormatter("livecap: %(message)s"))  # log lines may quote a file too
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, handlers=[handler])
     if args.command is None:
         parser.print_help()
         return EXIT_USER_ERROR
