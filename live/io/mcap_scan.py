@@ -235,6 +235,7 @@ class McapScan:
     def records(self) -> Iterator[tuple[int, Metadata | Attachment | Channel | ScannedMessage]]:
         mm, end = self._mm, self.data_end
         pos = 8
+        seen_chunk = False
         while pos < end:
             if pos + _HEAD.size > end:
                 pos = self._skip(pos, f"{end - pos} bytes at the end are not a whole record header")
@@ -242,6 +243,7 @@ class McapScan:
             opcode, length = _HEAD.unpack_from(mm, pos)
             stop = pos + _HEAD.size + length
             if pos in self._chunk_index:  # the index knows this chunk's extent, whatever its header says
+                seen_chunk = True
                 pos = yield from self._chunk(pos, length)
                 continue
             if opcode not in _NAMES:
@@ -259,7 +261,14 @@ class McapScan:
             if opcode in (Opcode.DATA_END, Opcode.FOOTER):
                 return
             if opcode == Opcode.CHUNK:
+                seen_chunk = True
                 pos = yield from self._chunk(pos, length)
+                continue
+            if opcode == Opcode.MESSAGE and (seen_chunk or self._chunk_index):
+                # Sessions keep every message in a chunk: a lone message record in a chunked file
+                # is another record whose opcode byte was hit (a message index, say), not data.
+                self.damage.append(Damage(pos, stop - pos, "a message record outside the chunks of a chunked file"))
+                pos = stop
                 continue
             body = bytes(mm[pos + _HEAD.size: stop])
             try:
