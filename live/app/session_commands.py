@@ -69,7 +69,7 @@ def cmd_info(args) -> int:
     }
     if args.json:
         print(json.dumps(doc, indent=2))
-        return EXIT_DATA_LOSS if reader.error else 0
+        return _damage_exit("info", reader.error)  # the JSON on stdout, the one line on stderr
     state = "" if reader.finished else (" (unfinished: its recorder never closed it; read to its last "
                                         "complete record)")
     print(f"{args.session}: livecap {info.version or '?'} session{state}")
