@@ -349,7 +349,7 @@ def _scaled(base: str, name: str, width: int, height: int, f: float, **kw) -> Ca
 #: with its image halved (disparity still resolved at 640 px: one more fractional bit at 320);
 #: the Kinect v2 (time of flight) gets the stereo model at its resolution and focal length.
 SCENES: dict[str, SimScene] = {
-    "xtion": SimScene(_scaled("kinect-v1", "sim-xtion", 320, 240, 285.7143, subpixel_bits=4), (2.6, 3.4), 1.2),
+    "xtion": SimScene(PRESETS["xtion"], (2.6, 3.4), 1.2),
     "kinect-v2": SimScene(_scaled("kinect-v1", "sim-kinect-v2", 512, 424, 364.85), (2.2, 2.8), 1.8, None),
     "kinect-v1": SimScene(PRESETS["kinect-v1"], (0.75, 0.95), 1.45, None, 0.55),
     "oak-d": SimScene(PRESETS["oak-d"], (1.5, 4.0), 1.3, None),

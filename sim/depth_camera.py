@@ -64,6 +64,10 @@ class CameraPreset:
 #   (320 / tan 40 deg = 381.4 px); the IR dot projector makes matching easier -> lower sigma.
 # - kinect-v1: 640x480 IR camera, fx = fy = 580 px and 7.5 cm projector-camera baseline,
 #   disparity in 1/8 px, 0.5-5 m range, error ~4 cm at 5 m (Khoshelham & Elberink 2012).
+# - xtion: Asus Xtion PRO, the same PrimeSense design at 320x240 (fx = fy = 285.71 px, as the
+#   shared ITOP frames' intrinsics), disparity still resolved at 640 px (one more fractional bit);
+#   sigma fitted to the real frames' plane-fit noise on the body (docs/depth_realism.md: about
+#   10 mm at 2.75-3.25 m), 0.55x the kinect-v1 sigma scaled to this focal length.
 PRESETS: dict[str, CameraPreset] = {
     p.name: p
     for p in (
@@ -73,6 +77,8 @@ PRESETS: dict[str, CameraPreset] = {
                      3, 0.1),
         CameraPreset("kinect-v1", 640, 480, 580.0, 580.0, 319.5, 239.5, 0.075, 0.5, 5.0, 30.0, 3,
                      0.07),
+        CameraPreset("xtion", 320, 240, 285.7143, 285.7143, 159.5, 119.5, 0.075, 0.8, 4.5, 30.0, 4,
+                     0.019),
     )
 }
 
