@@ -127,3 +127,23 @@ def test_the_cli_limits_blas_threads_in_main_not_on_import():
     env["OMP_NUM_THREADS"] = "3"  # a user's own setting wins
     proc = subprocess.run([sys.executable, "-c", _BLAS_CHECK], cwd=ROOT, env=env, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
+
+
+
+class _ClosedPipe:
+    """A stdout whose reader has gone (what `| head` leaves once head exits)."""
+
+    def write(self, text):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    def flush(self):
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+def test_closed_stdout_pipe_exits_quietly_with_141(monkeypatch, capsys):
+    """`livecap info X --json | head`: no traceback, exit 128 + SIGPIPE like `cat`."""
+    from live.app.running import DEMO_SESSION
+
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    assert main(["info", str(DEMO_SESSION), "--json"]) == 141
+    assert capsys.readouterr().err == ""

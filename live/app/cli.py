@@ -18,6 +18,9 @@ LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shi
             "each skeleton 67 ms later with ~40 %% less jitter")
 #: Exit status when the machine, not the user, is at fault (out of memory): still one line.
 EXIT_FAILURE = 1
+#: Exit status when the reader of stdout went away (``livecap info X --json | head``): 128 + SIGPIPE,
+#: what a shell reports for `cat` in the same place, so `set -o pipefail` scripts see it as usual.
+EXIT_BROKEN_PIPE = 141
 
 
 class LivecapParser(argparse.ArgumentParser):
@@ -243,6 +246,14 @@ def limit_blas_threads() -> None:
         os.environ.setdefault(var, "1")
 
 
+def _silence_stdout(stdout) -> None:
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # no real file descriptor (a test's StringIO)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     limit_blas_threads()
     parser = build_parser()
@@ -280,6 +291,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"livecap {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader closed the pipe: nothing left to say to it. Python's docs (signal, "Note on
+        # SIGPIPE"): point stdout at devnull so the interpreter's final flush does not fail again.
+        _silence_stdout(stdout)
+        return EXIT_BROKEN_PIPE
     finally:
         sys.stdout, sys.stderr = stdout, stderr
 
