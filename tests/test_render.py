@@ -219,3 +219,56 @@ def test_captions_give_the_point_count_apart_from_the_timings():
     assert left == ["t   1.000 s", "no skeleton"]
     assert right == ["cloud    2.0 ms", "skeleton    4.5 ms", "total    6.5 ms", "points 12345"]
     assert _captions(FrameResult(t_ns=0), None)[1] == []
+
+
+def _video_stream(path):
+    av = pytest.importorskip("av")
+    with av.open(str(path)) as f:
+        s = f.streams.video[0]
+        return s.codec_context.name, s.frames, float(s.duration * s.time_base), (s.width, s.height)
+
+
+@pytest.mark.parametrize("fps", [15.0, 30.0])
+def test_video_is_h264_and_lasts_as_long_as_the_take(tmp_path, fps):
+    """Frame i at i / fps: 24 frames of a 15 fps take last 1.6 s, not 0.8 s at a fixed 30 fps."""
+    pytest.importorskip("av")
+    period = round(1e9 / fps)
+    results = []
+    for i in range(24):
+        r, _ = _frame(seed=i)
+        r.t_ns = 5_000_000_000 + i * period
+        results.append(r)
+    path = tmp_path / "take.mp4"
+    assert frames_to_video(iter(results), path, fps=fps, size=(320, 120)) == 24
+    codec, frames, seconds, size = _video_stream(path)
+    assert codec == "h264" and frames == 24 and size == (320, 120)
+    assert seconds == pytest.approx(24 / fps, abs=1e-3)
+
+
+def test_odd_video_sizes_are_padded_for_h264(tmp_path):
+    pytest.importorskip("av")
+    r, _ = _frame()
+    with VideoSink(tmp_path / "odd.mp4", fps=15, size=(161, 45)) as sink:
+        assert sink.codec == "h264"
+        sink.send(r)
+        sink.send(r)
+    assert sink.frames == 2 and sink.errors == 0
+    assert _video_stream(tmp_path / "odd.mp4")[3] == (162, 46)
+
+
+def test_without_pyav_the_video_is_mpeg4_and_one_line_says_so(tmp_path, monkeypatch, capsys):
+    from live.outputs import render
+
+    monkeypatch.setattr(render, "_h264_available", lambda: False)
+    render._warn_no_h264.cache_clear()
+    r, _ = _frame()
+    with VideoSink(tmp_path / "old.mp4", fps=15, size=(320, 120)) as sink:
+        sink.send(r)
+    render._warn_no_h264.cache_clear()
+    assert sink.codec == "mpeg4"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "browsers do not play" in err[0] and "pip install av" in err[0]
+    cap = cv2.VideoCapture(str(tmp_path / "old.mp4"))
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    cap.release()
+    assert fourcc.lower() in ("mp4v", "fmp4")  # MPEG-4 Part 2 under either tag

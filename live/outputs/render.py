@@ -1,7 +1,7 @@
 """Rendered video output: the depth view with the performer's skeleton beside the shaded avatar.
 
 ``compose_frame`` is pure (one FrameResult -> one BGR image); ``VideoSink`` writes those images
-to an .mp4 with OpenCV ('mp4v'); ``frames_to_video`` does the same for a finished run
+to an .mp4 (H.264 through PyAV, else OpenCV's MPEG-4 Part 2); ``frames_to_video`` does the same for a finished run
 (``livecap render``). Layout, left to right: depth panel (colour-mapped depth image, or the
 points splatted through the intrinsics; skeleton projected world -> camera -> pixels), avatar
 panel (posed mesh rasterised by live/outputs/raster.py from a fixed virtual camera in front of
@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import logging
 import math
+import sys
 from collections.abc import Iterable
 from dataclasses import dataclass
+from fractions import Fraction
 from functools import lru_cache
 from pathlib import Path
 
@@ -294,15 +296,86 @@ def _check_options(path: str | Path, fps: float, opts: RenderOptions) -> Path:
     return path
 
 
-def _open_writer(path: Path, fps: float, size: tuple[int, int]) -> cv2.VideoWriter:
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
-    if not writer.isOpened():
-        raise UserInputError(f"cannot write video {path} (OpenCV's mp4v encoder refused it)")
-    return writer
+class _Mp4Writer:
+    """BGR frames -> .mp4 at a constant rate. H.264 (libx264 through PyAV, yuv420p, faststart: what
+    browsers play) when PyAV is installed, else OpenCV's MPEG-4 Part 2 ('mp4v', which browsers do
+    not play) after one line on stderr saying so. Frame i is shown at i / fps, so N frames last
+    N / fps seconds."""
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]) -> None:
+        self.path, self.size = path, size
+        self.codec = "h264" if _h264_available() else "mpeg4"
+        if self.codec == "h264":
+            self._open_h264(fps)
+        else:
+            _warn_no_h264()
+            self._cv = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
+            if not self._cv.isOpened():
+                raise UserInputError(f"cannot write video {path} (OpenCV's mp4v encoder refused it)")
+
+    def _open_h264(self, fps: float) -> None:
+        import av
+
+        try:
+            self._container = av.open(str(self.path), "w", options={"movflags": "+faststart"})
+        except (OSError, av.FFmpegError) as e:
+            raise UserInputError(f"cannot write video {self.path} ({e})") from None
+        # yuv420p needs even sides: an odd width or height gets one repeated edge column / row.
+        w, h = self.size
+        self._pad = (h % 2, w % 2)
+        stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1_000_000))
+        stream.width, stream.height, stream.pix_fmt = w + w % 2, h + h % 2, "yuv420p"
+        stream.options = {"crf": "23", "preset": "veryfast"}
+        self._stream = stream
+
+    def write(self, bgr: np.ndarray) -> None:
+        if self.codec != "h264":
+            self._cv.write(bgr)
+            return
+        import av
+
+        if any(self._pad):
+            bgr = np.pad(bgr, ((0, self._pad[0]), (0, self._pad[1]), (0, 0)), mode="edge")
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(bgr), format="bgr24")
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
+
+    def close(self) -> None:
+        if self.codec != "h264":
+            self._cv.release()
+            return
+        try:
+            for packet in self._stream.encode():  # the frames the encoder still holds
+                self._container.mux(packet)
+        finally:
+            self._container.close()
+
+
+@lru_cache(maxsize=1)
+def _h264_available() -> bool:
+    try:
+        import av
+
+        av.codec.Codec("libx264", "w")
+    except Exception:  # not installed, or a build without libx264
+        return False
+    return True
+
+
+@lru_cache(maxsize=1)
+def _warn_no_h264() -> None:
+    # print, not log: the CLI shows only errors unless -v, and this decides whether the file plays.
+    print("livecap: no H.264 encoder (PyAV with libx264): writing MPEG-4 Part 2 video, which browsers do not "
+          "play; `pip install av` for H.264", file=sys.stderr, flush=True)
+
+
+def _open_writer(path: Path, fps: float, size: tuple[int, int]) -> _Mp4Writer:
+    return _Mp4Writer(path, fps, size)
 
 
 class VideoSink:
-    """Writes one composed frame per FrameResult to an .mp4 (OpenCV 'mp4v').
+    """Writes one composed frame per FrameResult to an .mp4 (H.264, see _Mp4Writer) at fps: the
+    take's frame rate, so the video lasts as long as the take.
 
     Never raises from send(); errors are counted in ``errors`` and logged.
     """
@@ -325,7 +398,8 @@ class VideoSink:
             **options,
         )
         self.path = _check_options(path, fps, self.opts)
-        self._writer = _open_writer(self.path, fps, self.opts.size)
+        self._writer: _Mp4Writer | None = _open_writer(self.path, fps, self.opts.size)
+        self.codec = self._writer.codec  # "h264", or "mpeg4" without PyAV
         self._t0_ns: int | None = None
         self.frames = 0
         self.errors = 0
@@ -345,7 +419,7 @@ class VideoSink:
 
     def close(self) -> None:
         if self._writer is not None:
-            self._writer.release()
+            self._writer.close()
             self._writer = None
 
     def __enter__(self) -> VideoSink:
@@ -383,5 +457,5 @@ def frames_to_video(
             writer.write(compose_frame(result, opts, t0))
             n += 1
     finally:
-        writer.release()
+        writer.close()
     return n
