@@ -147,3 +147,34 @@ def test_closed_stdout_pipe_exits_quietly_with_141(monkeypatch, capsys):
     monkeypatch.setattr(sys, "stdout", _ClosedPipe())
     assert main(["info", str(DEMO_SESSION), "--json"]) == 141
     assert capsys.readouterr().err == ""
+
+
+def _bvh_frame_time(path):
+    return next(float(line.split(":")[1]) for line in path.read_text().splitlines() if line.startswith("Frame Time:"))
+
+
+def test_outputs_take_the_takes_frame_rate_from_sessions_and_depth_folders(tmp_path):
+    """A 15 fps take: avatar.bvh says 1/15 s per frame and the video lasts n / 15 s, whether the
+    take is replayed from a session or from a depth folder."""
+    av = pytest.importorskip("av")
+    rng = np.random.default_rng(5)
+    images = [rng.integers(500, 4000, size=(40, 64)).astype(np.uint16) for _ in range(9)]
+    session = tmp_path / "s.mcap"
+    with SessionWriter(session, [StreamInfo("cam", "depth", {"fps": 15.0})]) as w:
+        for i, img in enumerate(images):
+            w.write(DepthFrame(i * 66_666_667, "cam", depth_mm=img, intrinsics=K))
+    folder = tmp_path / "depth"
+    folder.mkdir()
+    for i, img in enumerate(images):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), img)
+    (folder / "intrinsics.json").write_text(json.dumps({"fx": 200, "fy": 200, "cx": 32, "cy": 20,
+                                                        "width": 64, "height": 40, "fps": 15}))
+    for name, target in (("session", session), ("folder", folder)):
+        out = tmp_path / name
+        assert main(["replay", str(target), "--out", str(out), "--quiet", "--avatar", "default",
+                     "--video", str(tmp_path / f"{name}.mp4")]) == 0
+        assert _bvh_frame_time(out / "avatar.bvh") == pytest.approx(1 / 15, abs=1e-8)
+        with av.open(str(tmp_path / f"{name}.mp4")) as f:
+            s = f.streams.video[0]
+            assert s.codec_context.name == "h264"
+            assert float(s.duration * s.time_base) == pytest.approx(9 / 15, abs=1e-3)

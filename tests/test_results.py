@@ -213,3 +213,20 @@ def test_a_killed_replay_is_recovered(tmp_path):
     skel, avatar = read_skeleton(out / "skeleton.npz"), read_avatar(out / "avatar.npz")
     assert len(skel) >= 20 and len(avatar) >= 20 and np.all(np.diff(skel.t_ns) > 0)
     assert (out / "avatar.bvh").read_text().startswith("HIERARCHY")
+
+
+def test_avatar_bvh_frame_time_from_the_frames_when_the_source_does_not_say(tmp_path):
+    from live.io.results import take_fps
+
+    assert take_fps(np.array([0, 66_666_667, 133_333_333, 300_000_000])) == pytest.approx(15.0, rel=1e-6)
+    assert take_fps(np.array([7])) == 30.0 and take_fps(np.array([5, 5])) == 30.0
+    rest = default_rest_joints()
+    for fps, expected in ((None, 1 / 15), (24.0, 1 / 24)):
+        out = tmp_path / str(fps)
+        writer = ResultsWriter(out, avatar_rest_joints=rest, fps=fps)
+        for i in range(5):
+            writer.send(FrameResult(t_ns=i * 66_666_667, avatar=AvatarPose(
+                t_ns=i * 66_666_667, root=np.zeros(3), rotations=np.tile([1.0, 0, 0, 0], (22, 1)), joints=rest)))
+        writer.close()
+        line = next(x for x in (out / "avatar.bvh").read_text().splitlines() if x.startswith("Frame Time:"))
+        assert float(line.split(":")[1]) == pytest.approx(expected, abs=1e-8)

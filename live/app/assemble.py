@@ -7,7 +7,7 @@ from pathlib import Path
 
 from live.core import assets
 from live.core.errors import UserInputError
-from live.io.results import ResultsWriter
+from live.io.results import DEFAULT_FPS, ResultsWriter
 from live.pipeline.stages import CloudStage, RetargetStage
 
 DEFAULT_SKELETON_MODEL = assets.weight("skeleton.onnx")
@@ -27,7 +27,9 @@ class RunOptions:
     vmc_rate: float = 60.0
     viewer: str | None = None
     video: Path | None = None
-    fps: float = 30.0
+    #: The take's frame rate (the depth stream's, see take_fps): avatar.bvh's Frame Time and the
+    #: video's rate. None: avatar.bvh from the frames' timestamps, the video at DEFAULT_FPS.
+    fps: float | None = None
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
@@ -38,6 +40,18 @@ def parse_host_port(text: str) -> tuple[str, int]:
     if not sep or not port.isdigit() or not host:
         raise UserInputError(f"--vmc wants HOST:PORT (e.g. 127.0.0.1:39539 or [::1]:39539), not {text!r}")
     return host, int(port)
+
+
+def take_fps(sources) -> float | None:
+    """The take's frame rate: the first depth stream's ``fps`` (session metadata, a depth folder's
+    intrinsics.json, a camera's mode); None when no source says. Replays of a session and of its
+    depth folder get the same."""
+    for source in sources:
+        for stream in source.streams() if hasattr(source, "streams") else []:
+            fps = stream.meta.get("fps") if stream.kind == "depth" else None
+            if isinstance(fps, int | float) and not isinstance(fps, bool) and 0 < fps < float("inf"):
+                return float(fps)
+    return None
 
 
 def build(opts: RunOptions) -> tuple[list, list, dict]:
@@ -84,7 +98,7 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if opts.video:
         from live.outputs.render import VideoSink
 
-        sinks.append(VideoSink(opts.video, fps=opts.fps, avatar_faces=None if body is None else body.faces))
+        sinks.append(VideoSink(opts.video, fps=opts.fps or DEFAULT_FPS, avatar_faces=None if body is None else body.faces))
     return stages, sinks, parts
 
 

@@ -19,10 +19,10 @@ from live.core.errors import UserInputError
 from live.core.report import p50_p95
 
 
-def _run_options(args, out: Path, video: Path | None = None):
-    from live.app.assemble import RunOptions
+def _run_options(args, out: Path, video: Path | None = None, sources=()):
+    from live.app.assemble import RunOptions, take_fps
 
-    return RunOptions(out=out, avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
+    return RunOptions(out=out, fps=take_fps(sources), avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
                       hand_ik=args.hand_ik, model=args.model, threads=args.threads, lag=args.lag, vmc=args.vmc,
                       vmc_rate=args.vmc_rate, viewer=args.viewer, video=video or args.video)
 
@@ -34,7 +34,7 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     source = open_replay(target, speed=speed)
     out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))
-    stages, sinks, parts = build(_run_options(args, out, video))
+    stages, sinks, parts = build(_run_options(args, out, video, [source]))
     for stream in source.streams() if hasattr(source, "streams") else []:
         if stream.kind == "gt" and "camera_to_world" in stream.meta:  # extrinsics withheld from the depth
             parts["accuracy"].set_true_camera(stream.meta["camera_to_world"])
@@ -158,7 +158,7 @@ def cmd_run(args) -> int:
     from live.app.assemble import build
 
     sources = _open_sources(args.source)
-    stages, sinks, parts = build(_run_options(args, args.out))
+    stages, sinks, parts = build(_run_options(args, args.out, sources=sources))
     stats = run_pipeline(sources, stages, sinks, mode="latest", record=args.record,
                          seconds=args.seconds, progress=not args.quiet)
     _add_skeleton_lag(stats, parts)

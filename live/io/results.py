@@ -30,6 +30,16 @@ from live.core.skeleton import NUM_JOINTS, PARENTS
 
 PARTIAL_DIR = "results.partial"
 _REST_FILE = "avatar_rest.npz"  # the avatar's rest joints and the frame rate, for avatar.bvh
+#: avatar.bvh's rate when neither the source nor the frames tell (fewer than two frames).
+DEFAULT_FPS = 30.0
+
+
+def take_fps(t_ns: np.ndarray, default: float = DEFAULT_FPS) -> float:
+    """A take's frame rate from its frame timestamps: one over the median interval (a dropped or
+    late frame does not move it); ``default`` with fewer than two distinct timestamps."""
+    steps = np.diff(np.asarray(t_ns, dtype=np.int64))
+    steps = steps[steps > 0]
+    return default if steps.size == 0 else 1e9 / float(np.median(steps))
 
 
 # ----------------------------------------------------------------------------------- the contract
@@ -192,11 +202,14 @@ def assemble_results(out_dir: str | Path) -> list[Path]:
                                        c2w))
     avatar = _chunks(partial, "avatar")
     if avatar:
-        rest, fps = None, 30.0
+        rest, fps = None, float("nan")
         if (partial / _REST_FILE).is_file():
             with np.load(partial / _REST_FILE, allow_pickle=False) as z:
                 rest, fps = z["rest_joints"], float(z["fps"])
-        written += _write_avatar(out, _joined(avatar, "t_ns"), _joined(avatar, "rotations"), _joined(avatar, "root"),
+        t_ns = _joined(avatar, "t_ns")
+        if not (np.isfinite(fps) and fps > 0):  # the source did not say: the frames' own rate
+            fps = take_fps(t_ns)
+        written += _write_avatar(out, t_ns, _joined(avatar, "rotations"), _joined(avatar, "root"),
                                  _joined(avatar, "joints"), rest, fps)
     shutil.rmtree(partial)
     return written
@@ -205,10 +218,12 @@ def assemble_results(out_dir: str | Path) -> list[Path]:
 class ResultsWriter:
     """A sink writing DIR/skeleton.npz, DIR/avatar.npz and DIR/avatar.bvh (see the module).
 
-    flush_every_s: how often (wall clock, ``clock``) the frames held go to a chunk file."""
+    fps: the take's frame rate (avatar.bvh's Frame Time is 1 / fps), e.g. the depth stream's; None:
+    from the avatar frames' timestamps (``take_fps``). flush_every_s: how often (wall clock,
+    ``clock``) the frames held go to a chunk file."""
 
     def __init__(self, out_dir: str | Path, *, avatar_rest_joints: np.ndarray | None = None,
-                 fps: float = 30.0, flush_every_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
+                 fps: float | None = None, flush_every_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
         self.out = Path(out_dir)
         self.avatar_rest_joints = avatar_rest_joints
         self.fps = fps
@@ -261,7 +276,7 @@ class ResultsWriter:
             self.partial.mkdir(parents=True)
             if self.avatar_rest_joints is not None:
                 _save_atomically(self.partial / _REST_FILE, rest_joints=np.asarray(self.avatar_rest_joints, np.float32),
-                                 fps=np.float64(self.fps))
+                                 fps=np.float64(np.nan if self.fps is None else self.fps))
         k = self._chunks_written
         if self.skel_t:
             _save_atomically(self.partial / f"skeleton-{k:06d}.npz", t_ns=np.asarray(self.skel_t, np.int64),
