@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from live.body.gltf_avatar import gltf_is_rigged, is_gltf_file, load_gltf_avatar
 from live.core.errors import FormatError, UserInputError
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
 
@@ -239,10 +240,14 @@ def avatar_from_points(vertices: np.ndarray, faces: np.ndarray | None = None, *,
 
 
 def load_avatar(spec: str | Path, *, field_model: str | Path | None = None):
-    """A Body for ``--avatar``: a preset name, a body .npz, ``anny:...``, or a T-pose mesh / point
-    cloud file (skeleton fitted, weights from the skinning field)."""
+    """A Body for ``--avatar``: a preset name, a body .npz, ``anny:...``, a VRM or rigged glTF (its own
+    skeleton and skin), or a T-pose mesh / point cloud file (skeleton fitted, weights from the
+    skinning field)."""
     from live.body.library import load_body
 
+    if is_gltf_file(spec) and gltf_is_rigged(spec):
+        # A VRM, or a glTF with a skin: its own skeleton, weights and facing (live/body/gltf_avatar.py).
+        return load_gltf_avatar(spec)
     if is_geometry_file(spec):
         verts, faces = read_geometry(spec)
         return avatar_from_points(verts, faces, name=Path(str(spec)).stem, field_model=field_model)

@@ -1,0 +1,537 @@
+"""Avatars from VRM and glTF humanoids: ``load_gltf_avatar(path) -> Body`` for ``.vrm``, ``.glb``, ``.gltf``.
+
+The file is read with pygltflib (the container, its JSON and its buffers); its accessors are decoded
+here with numpy, every one checked against the bytes its buffer really holds. What is read:
+
+- the humanoid bone map: VRM 0.x ``extensions.VRM.humanoid.humanBones`` ([{bone, node}]), VRM 1.0
+  ``extensions.VRMC_vrm.humanoid.humanBones`` ({bone: {node}}), or, for a plain glTF skin, the bone
+  names matched as BVH rigs are (live/motion/auto_mapping.py);
+- the node tree at rest (each node's TRS or matrix), giving the world position of every bone;
+- every mesh primitive (triangles), posed by the nodes at rest: a skinned one through its skin
+  (joint world matrix x inverse bind matrix), any other one rigidly by its node.
+
+The humanoid bones become the 22 canonical joints (``joint_sources``: which bone each joint is, or
+that it is a point between two); the file's skin weights are folded onto them, each file joint to
+its nearest ancestor that is a canonical joint. The result is turned into our frame: +y up, metres,
+facing +z with the left side at +x (VRM 0.x faces -z and is turned 180 degrees about y; the turn is
+decided by the humanoid's own left and right, so a file whose metadata lies still comes out right),
+feet on y = 0. The rest pose must be a T-pose: arms more than 25 degrees from horizontal are an
+A-pose, refused in one line (an avatar's own rest pose is posed into the T-pose by later work).
+"""
+
+from __future__ import annotations
+
+import base64
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from live.body.body import Body
+from live.core.errors import FormatError, UserInputError
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
+
+GLTF_SUFFIXES = (".vrm", ".glb", ".gltf")
+MAX_FILE_BYTES = 256 * 1024 * 1024
+MAX_VERTICES = 2_000_000
+MAX_FACES = 4_000_000
+#: Arms further than this from horizontal in the rest pose are not a T-pose.
+TPOSE_TOLERANCE_DEG = 25.0
+
+#: VRM humanoid bone -> canonical joint, for the bones that are one (VRM 0.x and 1.0 share the names).
+#: The torso is settled in ``_torso`` (which bone is spine2 / spine3 depends on the bones present).
+VRM_BONE_TO_JOINT: dict[str, str] = {
+    "hips": "pelvis", "spine": "spine1", "neck": "neck", "head": "head",
+    **{f"{side}{bone}": f"{side}_{joint}" for side in ("left", "right") for bone, joint in (
+        ("Shoulder", "collar"), ("UpperArm", "shoulder"), ("LowerArm", "elbow"), ("Hand", "wrist"),
+        ("UpperLeg", "hip"), ("LowerLeg", "knee"), ("Foot", "ankle"), ("Toes", "foot"))},
+}
+REQUIRED_BONES = ("hips", "spine", "head", "leftUpperArm", "leftLowerArm", "leftHand", "rightUpperArm",
+                  "rightLowerArm", "rightHand", "leftUpperLeg", "leftLowerLeg", "leftFoot", "rightUpperLeg",
+                  "rightLowerLeg", "rightFoot")
+
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+
+
+@dataclass(frozen=True)
+class GltfHumanoid:
+    """What ``read_gltf_humanoid`` found: the Body, and where it came from.
+
+    kind: "vrm0", "vrm1" or "skin"; bones: humanoid bone name -> node index (for "skin", the
+    canonical joint names of the matched nodes); node_names: every node's name;
+    joint_sources: per canonical joint, the node it is (its position and its weights), or None
+    for a point placed between two bones (a bone the file does not have); turned: whether the
+    file was turned 180 degrees about y (it faced -z); to_ours: (4, 4) file scene -> our frame.
+    """
+
+    body: Body
+    kind: str
+    bones: dict[str, int]
+    node_names: tuple[str, ...]
+    joint_sources: tuple[int | None, ...]
+    turned: bool
+    to_ours: np.ndarray
+
+
+def is_gltf_file(spec: str | Path) -> bool:
+    return Path(str(spec)).suffix.lower() in GLTF_SUFFIXES
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def _open(path: Path):
+    """The pygltflib document with every buffer as bytes (list), after the size and magic checks."""
+    import pygltflib
+
+    if not path.is_file():
+        raise UserInputError(f"no avatar file {path}")
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise FormatError(f"{size / 2**20:.0f} MiB: larger than the {MAX_FILE_BYTES >> 20} MiB an avatar file may be",
+                          path=str(path))
+    with open(path, "rb") as f:
+        head = f.read(4)
+    try:
+        if head == b"glTF":
+            doc = pygltflib.GLTF2.load_binary(str(path))
+        elif head[:1] in (b"{", b" ", b"\n", b"\r", b"\t"):
+            doc = pygltflib.GLTF2.load_json(str(path))
+        else:
+            raise FormatError("not a glTF file (neither a binary glTF 'glTF' header nor glTF JSON)", path=str(path))
+    except FormatError:
+        raise
+    except Exception as e:  # pygltflib raises whatever its JSON and struct parsing meet
+        raise FormatError(f"not a readable glTF file ({type(e).__name__}: {e})", path=str(path)) from None
+    if doc is None or not doc.nodes:
+        raise FormatError("not a readable glTF file (no nodes)", path=str(path))
+    buffers = []
+    for i, buf in enumerate(doc.buffers or []):
+        buffers.append(_buffer_bytes(doc, i, buf, path))
+    return doc, buffers
+
+
+def _buffer_bytes(doc, i: int, buf, path: Path) -> bytes:
+    uri = buf.uri
+    if uri is None:
+        blob = doc.binary_blob() if i == 0 else None
+        if blob is None:
+            raise FormatError(f"buffer {i} has no data (no uri and no GLB binary chunk)", path=str(path))
+        data = bytes(blob)
+    elif uri.startswith("data:"):
+        try:
+            data = base64.b64decode(uri.split(",", 1)[1], validate=False)
+        except Exception as e:
+            raise FormatError(f"buffer {i}: a data URI that does not decode ({e})", path=str(path)) from None
+    else:
+        # An external file beside the glTF, never a path that leaves its folder (names are not trusted).
+        target = (path.parent / uri).resolve()
+        if target.parent != path.parent.resolve() or not target.is_file():
+            raise FormatError(f"buffer {i}: {uri!r} is not a file beside the glTF", path=str(path))
+        data = target.read_bytes()
+    if len(data) < (buf.byteLength or 0):
+        raise FormatError(f"buffer {i} holds {len(data)} bytes, fewer than the {buf.byteLength} it declares",
+                          path=str(path))
+    return data
+
+
+def _accessor(doc, buffers: list[bytes], index: int, where: str) -> np.ndarray:
+    """Accessor ``index`` as a float64 (count, components) array (normalized integers scaled)."""
+    if not 0 <= index < len(doc.accessors or []):
+        raise FormatError(f"accessor {index} does not exist", path=where)
+    acc = doc.accessors[index]
+    if acc.sparse is not None:
+        raise FormatError(f"accessor {index} is sparse, which avatars do not use", path=where)
+    if acc.componentType not in _DTYPES or acc.type not in _COMPONENTS:
+        raise FormatError(f"accessor {index}: unknown component type {acc.componentType} / {acc.type}", path=where)
+    dtype = np.dtype(_DTYPES[acc.componentType]).newbyteorder("<")
+    ncomp, count = _COMPONENTS[acc.type], int(acc.count)
+    if acc.bufferView is None:
+        return np.zeros((count, ncomp))
+    if not 0 <= acc.bufferView < len(doc.bufferViews or []):
+        raise FormatError(f"accessor {index}: buffer view {acc.bufferView} does not exist", path=where)
+    view = doc.bufferViews[acc.bufferView]
+    if not 0 <= view.buffer < len(buffers):
+        raise FormatError(f"buffer view {acc.bufferView}: buffer {view.buffer} does not exist", path=where)
+    data = buffers[view.buffer]
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    elem = dtype.itemsize * ncomp
+    stride = view.byteStride or elem
+    end_view = (view.byteOffset or 0) + view.byteLength
+    need = start + (stride * (count - 1) + elem if count else 0)
+    if stride < elem or need > min(end_view, len(data)) or start < 0:
+        raise FormatError(f"accessor {index} reads past its buffer ({need} > {min(end_view, len(data))} bytes)",
+                          path=where)
+    raw = np.lib.stride_tricks.as_strided(
+        np.frombuffer(data, np.uint8, count=need - start if count else 0, offset=start),
+        shape=(count, elem), strides=(stride, 1)) if count else np.zeros((0, elem), np.uint8)
+    out = np.ascontiguousarray(raw).view(dtype).reshape(count, ncomp).astype(np.float64)
+    if acc.normalized and dtype.kind in "iu":
+        out /= float(np.iinfo(dtype).max)
+    if not np.isfinite(out).all():
+        raise FormatError(f"accessor {index} holds NaN or infinite values", path=where)
+    return out
+
+
+def _local_matrix(node) -> np.ndarray:
+    if node.matrix is not None and len(node.matrix) == 16:
+        return np.asarray(node.matrix, np.float64).reshape(4, 4).T  # glTF matrices are column-major
+    m = np.eye(4)
+    if node.scale is not None:
+        m[:3, :3] = np.diag(np.asarray(node.scale, np.float64))
+    if node.rotation is not None:
+        x, y, z, w = (float(c) for c in node.rotation)  # glTF quaternions are (x, y, z, w)
+        n = np.sqrt(x * x + y * y + z * z + w * w) or 1.0
+        x, y, z, w = x / n, y / n, z / n, w / n
+        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        m[:3, :3] = r @ m[:3, :3]
+    if node.translation is not None:
+        m[:3, 3] = np.asarray(node.translation, np.float64)
+    return m
+
+
+def _world_matrices(doc, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4, 4) world matrices of the nodes at rest and (N,) parents (-1 for roots)."""
+    n = len(doc.nodes)
+    parents = np.full(n, -1, np.int64)
+    for i, node in enumerate(doc.nodes):
+        for c in node.children or []:
+            if not 0 <= c < n or parents[c] >= 0 or c == i:
+                raise FormatError(f"node {i} has a bad child {c} (missing, shared or itself)", path=where)
+            parents[c] = i
+    world = np.full((n, 4, 4), np.nan)
+    for i in range(n):
+        chain, j = [], i
+        while j >= 0 and np.isnan(world[j, 0, 0]):
+            chain.append(j)
+            j = int(parents[j])
+            if len(chain) > n:
+                raise FormatError("the node tree has a cycle", path=where)
+        m = np.eye(4) if j < 0 else world[j]
+        for k in reversed(chain):
+            m = m @ _local_matrix(doc.nodes[k])
+            world[k] = m
+    if not np.isfinite(world).all():
+        raise FormatError("a node transform holds NaN or infinite values", path=where)
+    return world, parents
+
+
+# ----------------------------------------------------------------------------- the humanoid
+
+
+def _humanoid_bones(doc, where: str) -> tuple[str, dict[str, int]]:
+    """("vrm0" / "vrm1", {bone: node}), or ("skin", {}) when the file has no VRM humanoid."""
+    ext = doc.extensions or {}
+    n = len(doc.nodes)
+    bones: dict[str, int] = {}
+    if isinstance(ext.get("VRMC_vrm"), dict):
+        kind, raw = "vrm1", (ext["VRMC_vrm"].get("humanoid") or {}).get("humanBones")
+        items = [(b, v.get("node") if isinstance(v, dict) else None) for b, v in raw.items()] \
+            if isinstance(raw, dict) else None
+    elif isinstance(ext.get("VRM"), dict):
+        kind, raw = "vrm0", (ext["VRM"].get("humanoid") or {}).get("humanBones")
+        items = [(b.get("bone"), b.get("node")) for b in raw if isinstance(b, dict)] if isinstance(raw, list) else None
+    else:
+        return "skin", {}
+    if items is None:
+        raise FormatError(f"its {'VRMC_vrm' if kind == 'vrm1' else 'VRM'} extension has no humanoid.humanBones",
+                          path=where)
+    for bone, node in items:
+        if isinstance(bone, str) and isinstance(node, int) and 0 <= node < n:
+            bones[bone] = node
+        elif isinstance(bone, str) and node not in (None, -1):
+            raise FormatError(f"humanoid bone {bone!r} points at node {node!r}, which does not exist", path=where)
+    missing = [b for b in REQUIRED_BONES if b not in bones]
+    if missing:
+        raise FormatError(f"the VRM humanoid lacks required bones: {', '.join(missing)}", path=where)
+    return kind, bones
+
+
+def _vrm_sources(bones: dict[str, int]) -> dict[str, int | tuple[int, int, float]]:
+    """Canonical joint -> node, or (node a, node b, t) = the point lerp(a, b, t) for a joint the file
+    has no bone for. The joint where the neck and the shoulders branch off is spine3, so that the
+    chest's skin turns with it (with no upperChest that is the chest, and spine2 lies between)."""
+    src: dict[str, int | tuple[int, int, float]] = {}
+    for bone, joint in VRM_BONE_TO_JOINT.items():
+        if bone in bones:
+            src[joint] = bones[bone]
+    spine, head = bones["spine"], bones["head"]
+    chest, upper = bones.get("chest"), bones.get("upperChest")
+    if upper is not None and chest is not None:
+        src["spine2"], src["spine3"] = chest, upper
+    elif upper is not None or chest is not None:
+        src["spine3"] = upper if upper is not None else chest  # type: ignore[assignment]
+        src["spine2"] = (spine, src["spine3"], 0.5)  # type: ignore[assignment]
+    if "neck" not in src:
+        top = src.get("spine3")
+        src["neck"] = (top, head, 0.5) if isinstance(top, int) else (spine, head, 0.8)
+    if "spine3" not in src:
+        neck = src["neck"] if isinstance(src["neck"], int) else head
+        src["spine2"], src["spine3"] = (spine, neck, 1 / 3), (spine, neck, 2 / 3)
+    for side in ("left", "right"):
+        if f"{side}_collar" not in src:
+            top = src["spine3"]
+            src[f"{side}_collar"] = (top, bones[f"{side}UpperArm"], 0.5) if isinstance(top, int) \
+                else (spine, bones[f"{side}UpperArm"], 0.8)
+    return src
+
+
+def _skin_sources(doc, world: np.ndarray, parents: np.ndarray, where: str) -> dict[str, int | tuple[int, int, float]]:
+    """Canonical joint -> node for a plain glTF skin, through the BVH auto-mapping of its bone names."""
+    from live.io.bvh_clip import BvhSkeleton
+    from live.motion.auto_mapping import auto_mapping
+
+    joints = sorted({int(j) for skin in doc.skins or [] for j in skin.joints or [] if 0 <= j < len(doc.nodes)})
+    if not joints:
+        raise FormatError("no VRM humanoid and no skin: not a rigged avatar", path=where)
+    # The skin's joints and their ancestors as a BVH-like tree (parents before children).
+    keep = set(joints)
+    for j in joints:
+        p = int(parents[j])
+        while p >= 0:
+            keep.add(p)
+            p = int(parents[p])
+    order: list[int] = []
+    roots = [j for j in keep if parents[j] < 0 or int(parents[j]) not in keep]
+    stack = sorted(roots, reverse=True)
+    while stack:
+        j = stack.pop()
+        order.append(j)
+        stack.extend(sorted((c for c in (doc.nodes[j].children or []) if c in keep), reverse=True))
+    pos = {j: i for i, j in enumerate(order)}
+    names = []
+    for j in order:
+        name = doc.nodes[j].name or f"node{j}"
+        names.append(name if name not in names else f"{name}#{j}")
+    par = np.array([pos.get(int(parents[j]), -1) for j in order], np.int64)
+    xyz = world[order, :3, 3]
+    offsets = np.array([xyz[i] - (xyz[par[i]] if par[i] >= 0 else 0.0) for i in range(len(order))])
+    skeleton = BvhSkeleton(names=tuple(names), parents=par, offsets=offsets,
+                           channels=tuple(() for _ in order))
+    try:
+        table = auto_mapping(skeleton)
+    except FormatError as e:
+        raise FormatError(f"no VRM humanoid, and its skin is not a recognisable skeleton: {e.message}",
+                          path=where) from None
+    by_name = {n: order[i] for i, n in enumerate(names)}
+    src: dict[str, int | tuple[int, int, float]] = {}
+    for joint, spec in table.joints.items():
+        if isinstance(spec, str):
+            if spec not in by_name:  # an end site: nothing of ours to place it on
+                raise FormatError(f"its skin has no bone for {joint}", path=where)
+            src[joint] = by_name[spec]
+        else:
+            src[joint] = (by_name[spec[0]], by_name[spec[1]], float(spec[2]))
+    return src
+
+
+# ----------------------------------------------------------------------------- meshes and weights
+
+
+def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
+    """(vertices (V, 3) in the file's scene frame, faces (F, 3), weights (V, 22)) of every mesh at rest."""
+    verts, faces, weights = [], [], []
+    count = 0
+    for ni, node in enumerate(doc.nodes):
+        if node.mesh is None:
+            continue
+        if not 0 <= node.mesh < len(doc.meshes or []):
+            raise FormatError(f"node {ni} points at mesh {node.mesh}, which does not exist", path=where)
+        skin = doc.skins[node.skin] if node.skin is not None and 0 <= node.skin < len(doc.skins or []) else None
+        if skin is not None:
+            sj = np.array([int(j) for j in skin.joints or []], np.int64)
+            if len(sj) == 0 or sj.min() < 0 or sj.max() >= len(doc.nodes):
+                raise FormatError(f"skin {node.skin} names joints that do not exist", path=where)
+            ibm = _accessor(doc, buffers, skin.inverseBindMatrices, where).reshape(-1, 4, 4).transpose(0, 2, 1) \
+                if skin.inverseBindMatrices is not None else np.tile(np.eye(4), (len(sj), 1, 1))
+            if len(ibm) < len(sj):
+                raise FormatError(f"skin {node.skin} has {len(ibm)} inverse bind matrices for {len(sj)} joints",
+                                  path=where)
+            joint_mats = world[sj] @ ibm[:len(sj)]
+        seen: dict[tuple, tuple[int, int]] = {}  # primitives sharing a vertex set share its vertices
+        for prim in doc.meshes[node.mesh].primitives or []:
+            if (prim.mode if prim.mode is not None else 4) != 4 or prim.attributes.POSITION is None:
+                continue  # points and lines carry no surface
+            a = prim.attributes
+            key = (a.POSITION, a.JOINTS_0, a.WEIGHTS_0)
+            if key not in seen:
+                p = _accessor(doc, buffers, a.POSITION, where)[:, :3]
+                count += len(p)
+                if count > MAX_VERTICES:
+                    raise FormatError(f"more than the {MAX_VERTICES} vertices an avatar may have", path=where)
+                ph = np.concatenate([p, np.ones((len(p), 1))], axis=1)
+                if skin is not None and a.JOINTS_0 is not None and a.WEIGHTS_0 is not None:
+                    ji = _accessor(doc, buffers, a.JOINTS_0, where).astype(np.int64)
+                    wi = _accessor(doc, buffers, a.WEIGHTS_0, where)
+                    if len(ji) != len(p) or len(wi) != len(p) or ji.min(initial=0) < 0 or ji.max(initial=0) >= len(sj):
+                        raise FormatError("JOINTS_0 / WEIGHTS_0 do not match the positions or the skin", path=where)
+                    wi = np.clip(wi, 0.0, None)
+                    mats = np.einsum("vk,vkab->vab", wi / np.maximum(wi.sum(1, keepdims=True), 1e-12),
+                                     joint_mats[ji])
+                    v = np.einsum("vab,vb->va", mats, ph)[:, :3]
+                    w = np.zeros((len(p), NUM_JOINTS))
+                    np.add.at(w, (np.repeat(np.arange(len(p)), ji.shape[1]), fold[sj[ji]].ravel()), wi.ravel())
+                else:
+                    v = (ph @ world[ni].T)[:, :3]
+                    w = np.zeros((len(p), NUM_JOINTS))
+                    w[:, fold[ni]] = 1.0
+                seen[key] = (sum(len(x) for x in verts), len(p))
+                verts.append(v)
+                weights.append(w)
+            offset, n_here = seen[key]
+            idx = _accessor(doc, buffers, prim.indices, where)[:, 0].astype(np.int64) \
+                if prim.indices is not None else np.arange(n_here)
+            if len(idx) % 3 or (len(idx) and (idx.min() < 0 or idx.max() >= n_here)):
+                raise FormatError("a triangle list that is not whole triangles of its own vertices", path=where)
+            faces.append(idx.reshape(-1, 3) + offset)
+    if not verts:
+        raise FormatError("no triangle meshes", path=where)
+    v, w = np.concatenate(verts), np.concatenate(weights)
+    f = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
+    if len(f) > MAX_FACES:
+        raise FormatError(f"more than the {MAX_FACES} faces an avatar may have", path=where)
+    if len(f) and f.max() >= len(v):
+        raise FormatError("triangles index vertices that do not exist", path=where)
+    empty = w.sum(1) <= 0
+    w[empty, 0] = 1.0  # vertices with no weight at all follow the pelvis
+    return v, f, w / w.sum(1, keepdims=True)
+
+
+# ----------------------------------------------------------------------------- the avatar
+
+
+def _point(world: np.ndarray, spec: int | tuple[int, int, float]) -> np.ndarray:
+    if isinstance(spec, int):
+        return world[spec, :3, 3]
+    a, b, t = spec
+    return (1.0 - t) * world[a, :3, 3] + t * world[b, :3, 3]
+
+
+def _subtree(parents: np.ndarray, top: int) -> np.ndarray:
+    inside = np.zeros(len(parents), bool)
+    for j in range(len(parents)):
+        k = j
+        while k >= 0 and k != top:
+            k = int(parents[k])
+        inside[j] = k == top
+    return np.flatnonzero(inside)
+
+
+def _arm_angles(world: np.ndarray, src: dict, left_sign: float) -> tuple[float, float]:
+    """Degrees between each arm (shoulder -> wrist) and its T-pose direction (left arm to the left)."""
+    out = []
+    for side, sign in (("left", left_sign), ("right", -left_sign)):
+        d = _point(world, src[f"{side}_wrist"]) - _point(world, src[f"{side}_shoulder"])
+        out.append(float(np.degrees(np.arccos(np.clip(sign * d[0] / max(np.linalg.norm(d), 1e-12), -1, 1)))))
+    return out[0], out[1]
+
+
+def _pose_arms_to_t(world: np.ndarray, parents: np.ndarray, src: dict, left_sign: float) -> np.ndarray:
+    """World matrices with each upper arm, then each forearm, turned (shortest arc, about its joint)
+    to point straight out sideways: an A-pose file posed into the T-pose by its own skeleton."""
+    world = world.copy()
+    for side, sign in (("left", left_sign), ("right", -left_sign)):
+        for a, b in (("shoulder", "elbow"), ("elbow", "wrist")):
+            ja, jb = src[f"{side}_{a}"], src[f"{side}_{b}"]
+            if not isinstance(ja, int):
+                continue
+            p = world[ja, :3, 3].copy()
+            d = _point(world, jb) - p
+            d /= max(np.linalg.norm(d), 1e-12)
+            target = np.array([sign, 0.0, 0.0])
+            axis = np.cross(d, target)
+            s, c = np.linalg.norm(axis), float(np.dot(d, target))
+            if s < 1e-9:
+                continue
+            k = axis / s
+            kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+            r = np.eye(4)
+            r[:3, :3] = np.eye(3) + s * kx + (1 - c) * kx @ kx
+            move = np.eye(4)
+            move[:3, 3] = p
+            back = np.eye(4)
+            back[:3, 3] = -p
+            turn = move @ r @ back
+            for n in _subtree(parents, ja):
+                world[n] = turn @ world[n]
+    return world
+
+
+def _place_missing(joints: np.ndarray, src: dict) -> None:
+    """Joints of our frame the file has no bone for, placed in place: a toe without a toes bone at
+    the default skeleton's toe offset from the ankle scaled by the leg's length (ahead, +z); a spine
+    bone on the hips (common in VRoid and Blender exports, which would leave the pelvis without a
+    direction to its spine) a third of the way up to spine2 (it keeps the spine bone's weights)."""
+    ref = default_rest_joints()
+    for side in ("left", "right"):
+        hip, ankle, foot = (JOINT_INDEX[f"{side}_{n}"] for n in ("hip", "ankle", "foot"))
+        if f"{side}_foot" not in src:
+            scale = np.linalg.norm(joints[ankle] - joints[hip]) / np.linalg.norm(ref[ankle] - ref[hip])
+            joints[foot] = joints[ankle] + scale * (ref[foot] - ref[ankle])
+    pelvis, spine1, spine2 = JOINT_INDEX["pelvis"], JOINT_INDEX["spine1"], JOINT_INDEX["spine2"]
+    if np.linalg.norm(joints[spine1] - joints[pelvis]) < 0.01 * float(joints[:, 1].max()):
+        joints[spine1] = joints[pelvis] + (joints[spine2] - joints[pelvis]) / 3.0
+
+
+def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
+    """The avatar of a VRM 0.x / 1.0 file or a glTF with a recognisable skin (module docstring)."""
+    path = Path(path)
+    where = str(path)
+    doc, buffers = _open(path)
+    world, parents = _world_matrices(doc, where)
+    kind, bones = _humanoid_bones(doc, where)
+    src = _vrm_sources(bones) if kind != "skin" else _skin_sources(doc, world, parents, where)
+    # Which way the file faces: its humanoid's left hand is on its +x side when it faces +z.
+    left_sign = 1.0 if _point(world, src["left_wrist"])[0] >= _point(world, src["right_wrist"])[0] else -1.0
+    left_deg, right_deg = _arm_angles(world, src, left_sign)
+    if max(left_deg, right_deg) > TPOSE_TOLERANCE_DEG:
+        world = _pose_arms_to_t(world, parents, src, left_sign)
+    owners = {spec: JOINT_INDEX[j] for j, spec in src.items() if isinstance(spec, int)}
+    fold = np.zeros(len(doc.nodes), np.int64)  # node -> canonical joint: itself or its nearest owner above
+    for n in range(len(doc.nodes)):
+        k = n
+        while k >= 0 and k not in owners:
+            k = int(parents[k])
+        fold[n] = owners[k] if k >= 0 else 0
+    verts, faces, weights = _meshes(doc, buffers, world, fold, where)
+    joints = np.stack([_point(world, src[n]) if n in src else np.zeros(3) for n in JOINT_NAMES])
+    # Into our frame: turned about y so that the left side is +x (facing +z), feet on y = 0.
+    to_ours = np.diag([left_sign, 1.0, left_sign, 1.0])
+    verts = verts @ to_ours[:3, :3].T
+    joints = joints @ to_ours[:3, :3].T
+    floor = float(verts[:, 1].min())
+    to_ours[1, 3] = -floor
+    verts[:, 1] -= floor
+    joints[:, 1] -= floor
+    height = float(np.ptp(verts[:, 1]))
+    if not 0.1 < height < 10.0:
+        raise FormatError(f"the avatar is {height:.3g} m tall: not a humanoid in metres", path=where)
+    if joints[JOINT_INDEX["pelvis"], 1] <= 0:
+        raise FormatError("its hips are not above its lowest vertex", path=where)
+    _place_missing(joints, src)
+    sources = tuple(src[n] if isinstance(src.get(n), int) else None for n in JOINT_NAMES)  # type: ignore[misc]
+    body = Body(vertices=verts.astype(np.float32), faces=faces.astype(np.int32), rest_joints=joints.astype(np.float32),
+                weights=weights.astype(np.float32), parents=PARENTS.copy(), name=path.stem, phenotype=None)
+    names = tuple(node.name or f"node{i}" for i, node in enumerate(doc.nodes))
+    return GltfHumanoid(body=body, kind=kind, bones=bones, node_names=names, joint_sources=sources,
+                        turned=left_sign < 0, to_ours=to_ours)
+
+
+def load_gltf_avatar(path: str | Path) -> Body:
+    """The Body of a VRM / glTF humanoid (``read_gltf_humanoid``)."""
+    return read_gltf_humanoid(path).body
+
+
+def gltf_is_rigged(path: str | Path) -> bool:
+    """True for a file read by ``load_gltf_avatar``: every ``.vrm``, and a ``.glb`` / ``.gltf`` with a
+    VRM extension or a skin. A glTF mesh without either is a plain T-pose mesh (live/body/avatar.py
+    fits a skeleton to it); one that cannot be read at all is a FormatError here."""
+    path = Path(path)
+    if path.suffix.lower() == ".vrm":
+        return True
+    doc, _ = _open(path)
+    ext = doc.extensions or {}
+    return bool(doc.skins) or isinstance(ext.get("VRM"), dict) or isinstance(ext.get("VRMC_vrm"), dict)
