@@ -1,0 +1,191 @@
+"""VRM and glTF humanoid avatars (live/body/gltf_avatar.py): the file's own skeleton, skin and facing."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from live.app.cli import main
+from live.body.gltf_avatar import read_gltf_humanoid
+from live.core.assets import shared_data_dir
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
+
+GODETTE = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
+needs_godette = pytest.mark.skipif(not GODETTE.is_file(), reason="../shared/data/avatars/godette_vrm0.vrm is absent")
+
+
+def _glb_chunks(path: Path) -> tuple[dict, bytes]:
+    """(JSON chunk, BIN chunk) of a GLB, read by hand (the tests edit the JSON)."""
+    data = path.read_bytes()
+    assert data[:4] == b"glTF"
+    jlen = struct.unpack_from("<I", data, 12)[0]
+    doc = json.loads(data[20:20 + jlen])
+    blen = struct.unpack_from("<I", data, 20 + jlen)[0]
+    return doc, data[28 + jlen:28 + jlen + blen]
+
+
+def _write_glb(path: Path, doc: dict, blob: bytes) -> Path:
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    blob += b"\0" * (-len(blob) % 4)
+    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(blob), 0x004E4942) + blob
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    return path
+
+
+def _file_bone_positions() -> dict[str, np.ndarray]:
+    """World rest position of each humanoid bone, summed along the node tree by hand (Godette's nodes
+    carry translations only: checked)."""
+    doc, _ = _glb_chunks(GODETTE)
+    parent = {c: i for i, n in enumerate(doc["nodes"]) for c in n.get("children", [])}
+    out = {}
+    for b in doc["extensions"]["VRM"]["humanoid"]["humanBones"]:
+        p, k = np.zeros(3), b["node"]
+        while k is not None:
+            node = doc["nodes"][k]
+            assert "matrix" not in node and node.get("rotation", [0, 0, 0, 1]) == [0, 0, 0, 1]
+            p += node.get("translation", [0, 0, 0])
+            k = parent.get(k)
+        out[b["bone"]] = p
+    return out
+
+
+@needs_godette
+def test_godette_rest_joints_are_the_files_own_bones():
+    h = read_gltf_humanoid(GODETTE)
+    assert h.kind == "vrm0" and h.turned  # VRM 0.x faces -z
+    bones = _file_bone_positions()
+    rest = h.body.rest_joints.astype(np.float64)
+    node_to_bone = {h.bones[b]: b for b in h.bones}
+    # Our frame: turned half about y, then shifted to the floor (compared relative to the hips).
+    turn = np.diag([-1.0, 1.0, -1.0])
+    checked = 0
+    for i, name in enumerate(JOINT_NAMES):
+        src = h.joint_sources[i]
+        if src is None or name == "spine1":
+            continue
+        want = turn @ (bones[node_to_bone[src]] - bones["hips"])
+        np.testing.assert_allclose(rest[i] - rest[0], want, atol=1e-3, err_msg=name)
+        checked += 1
+    assert checked == 20  # all but spine2 (Godette has no upperChest: it lies between spine and chest)
+    # Her spine bone sits on her hips: spine1 is put on the way up to spine2, still on the centre line.
+    s1, s2 = rest[JOINT_INDEX["spine1"]], rest[JOINT_INDEX["spine2"]]
+    assert rest[0, 1] < s1[1] < s2[1] < rest[JOINT_INDEX["spine3"]][1]
+
+
+@needs_godette
+def test_godette_faces_plus_z_left_hand_at_plus_x():
+    b = read_gltf_humanoid(GODETTE).body
+    j = b.rest_joints
+    for side, sign in (("left", 1), ("right", -1)):
+        assert sign * j[JOINT_INDEX[f"{side}_wrist"], 0] > 0.3
+        assert j[JOINT_INDEX[f"{side}_foot"], 2] > j[JOINT_INDEX[f"{side}_ankle"], 2] + 0.03  # toes ahead
+    # The face is in front of the head: vertices near head height reach further in +z than in -z
+    # behind it is the hair and the backpack, so compare at the eyes' height, in the middle.
+    v = b.vertices
+    head = j[JOINT_INDEX["head"]]
+    face = v[(np.abs(v[:, 0]) < 0.05) & (np.abs(v[:, 1] - head[1] - 0.15) < 0.05)]
+    assert face[:, 2].max() - head[2] > 0.15
+    assert abs(float(v[:, 1].min())) < 1e-6  # feet on the floor
+    assert np.allclose(b.weights.sum(1), 1.0, atol=1e-5) and (b.weights >= 0).all()
+    assert len(b.faces) > 3000 and b.faces.max() < len(v)
+
+
+@needs_godette
+def test_vrm1_conversion_gives_the_same_body(tmp_path):
+    from research.vrm1_from_vrm0 import convert
+
+    out = tmp_path / "godette_vrm1.vrm"
+    convert(GODETTE, out)
+    doc, _ = _glb_chunks(out)
+    assert "VRMC_vrm" in doc["extensions"] and "VRM" not in doc["extensions"]
+    a, b = read_gltf_humanoid(GODETTE), read_gltf_humanoid(out)
+    assert b.kind == "vrm1" and not b.turned
+    np.testing.assert_allclose(b.body.rest_joints, a.body.rest_joints, atol=1e-3)
+    np.testing.assert_allclose(b.body.vertices, a.body.vertices, atol=1e-3)
+    np.testing.assert_allclose(b.body.weights, a.body.weights, atol=1e-5)
+
+
+@needs_godette
+def test_plain_skin_maps_by_bone_names(tmp_path):
+    """Without the VRM extension the skin's bone names still give the skeleton (spine joints apart)."""
+    doc, blob = _glb_chunks(GODETTE)
+    del doc["extensions"]["VRM"]
+    doc["extensionsUsed"].remove("VRM")
+    h = read_gltf_humanoid(_write_glb(tmp_path / "skin.glb", doc, blob))
+    ref = read_gltf_humanoid(GODETTE).body.rest_joints
+    assert h.kind == "skin"
+    limbs = [i for i, n in enumerate(JOINT_NAMES) if n.startswith(("left_", "right_")) or n in ("neck", "head")]
+    np.testing.assert_allclose(h.body.rest_joints[limbs], ref[limbs], atol=1e-3)
+
+
+@needs_godette
+def test_demo_onto_godette(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["demo", "--avatar", str(GODETTE), "--no-video", "--out", str(out), "--quiet"]) == 0
+    avatar = np.load(out / "avatar.npz")
+    assert avatar["joints"].shape[0] > 100 and np.isfinite(avatar["joints"]).all()
+    np.testing.assert_allclose(avatar["rest_joints"], read_gltf_humanoid(GODETTE).body.rest_joints, atol=1e-6)
+
+
+def _cli_error(tmp_path, capsys, avatar: Path) -> str:
+    assert main(["demo", "--avatar", str(avatar), "--no-video", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    return err[0]
+
+
+def test_text_file_named_vrm(tmp_path, capsys):
+    bad = tmp_path / "bad.vrm"
+    bad.write_text("this is not an avatar\n")
+    assert "not a glTF file" in _cli_error(tmp_path, capsys, bad)
+
+
+@needs_godette
+def test_glb_without_vrm_and_skin(tmp_path, capsys):
+    doc, blob = _glb_chunks(GODETTE)
+    del doc["extensions"]["VRM"]
+    doc["extensionsUsed"].remove("VRM")
+    doc.pop("skins")
+    for node in doc["nodes"]:
+        node.pop("skin", None)
+    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "mesh.vrm", doc, blob))
+    assert "no VRM humanoid and no skin" in line
+
+
+@needs_godette
+def test_vrm_missing_a_required_bone(tmp_path, capsys):
+    doc, blob = _glb_chunks(GODETTE)
+    bones = doc["extensions"]["VRM"]["humanoid"]["humanBones"]
+    doc["extensions"]["VRM"]["humanoid"]["humanBones"] = [b for b in bones if b["bone"] != "leftLowerArm"]
+    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "no_elbow.vrm", doc, blob))
+    assert "lacks required bones: leftLowerArm" in line
+
+
+@needs_godette
+def test_broken_buffer(tmp_path, capsys):
+    doc, blob = _glb_chunks(GODETTE)
+    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "cut.vrm", doc, blob[:len(blob) // 2]))
+    assert "bytes" in line
+
+
+@needs_godette
+def test_mesh_only_glb_keeps_the_skinning_field_path(tmp_path):
+    """A .glb with neither a VRM humanoid nor a skin is a plain T-pose mesh: skeleton fitted, field weights."""
+    from live.body.avatar import load_avatar
+    from live.body.skinning_field import DEFAULT_MODEL
+
+    if not DEFAULT_MODEL.is_file():
+        pytest.skip("no committed skinning_field.onnx")
+    doc, blob = _glb_chunks(GODETTE)
+    del doc["extensions"]["VRM"]
+    doc["extensionsUsed"].remove("VRM")
+    doc.pop("skins")
+    for node in doc["nodes"]:
+        node.pop("skin", None)
+    body = load_avatar(_write_glb(tmp_path / "mesh.glb", doc, blob))
+    assert body.rest_joints.shape == (22, 3) and np.allclose(body.weights.sum(1), 1.0, atol=1e-4)
