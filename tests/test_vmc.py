@@ -288,3 +288,44 @@ def test_real_clip_replayed_over_vmc_rebuilds_the_motion(marionette, shared_bvh)
     root = np.stack([p.root for p, _ in marionette.poses])
     joints, _ = forward_kinematics(rot, root, motion.rest_joints)
     np.testing.assert_allclose(joints, motion.joints, atol=2e-5)
+
+
+def test_replay_vmc_without_avatar_sends_the_default_one_at_the_takes_pace(marionette, tmp_path, capsys):
+    """`replay S --vmc` with no --avatar: the default avatar, one line saying so; unset --speed
+    means recorded timing with --vmc; stats.json counts the bundles."""
+    import json
+
+    from live.app.cli import main
+    from live.core.frames import DepthFrame
+    from live.core.protocols import StreamInfo
+    from live.io.session import SessionWriter
+
+    k = np.array([[200.0, 0, 32], [0, 200.0, 20], [0, 0, 1]])
+    rng = np.random.default_rng(3)
+    session = tmp_path / "s.mcap"
+    with SessionWriter(session, [StreamInfo("cam", "depth", {"fps": 30})]) as w:
+        for i in range(12):
+            w.write(DepthFrame(i * 33_333_333, "cam", depth_mm=rng.integers(500, 4000, (40, 64)).astype(np.uint16),
+                               intrinsics=k))
+    out = tmp_path / "out"
+    assert main(["replay", str(session), "--out", str(out), "--quiet", "--vmc", f"127.0.0.1:{marionette.port}",
+                 "--vmc-rate", "0"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["livecap: --vmc without --avatar: sending the default avatar (choose one with --avatar)"]
+    stats = json.loads((out / "stats.json").read_text())
+    counters = stats["sinks"]["vmc"]["counters"]
+    assert counters["sent"] > 0 and counters["sent"] + counters["skipped"] == 12  # skipped: no pose (noise)
+    assert counters["coalesced"] == counters["refused"] == counters["errors"] == 0
+    marionette.wait_for(counters["sent"])
+    assert stats["wall_s"] >= 11 * 0.0333  # paced: the frames went out over the take's 0.37 s
+
+
+def test_unset_speed_is_max_except_with_vmc():
+    from argparse import Namespace
+
+    from live.app.commands import replay_speed
+
+    assert replay_speed(Namespace(speed=None, vmc=None)) == "max"
+    assert replay_speed(Namespace(speed=None, vmc="127.0.0.1:39539")) == "1"
+    assert replay_speed(Namespace(speed="max", vmc="127.0.0.1:39539")) == "max"
+    assert replay_speed(Namespace(speed="2", vmc=None)) == "2"

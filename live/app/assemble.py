@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,9 +72,12 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     else:
         # No skeleton model: the pipeline still turns every depth frame into a world cloud.
         stages.append(CloudStage())
+    vmc_address = parse_host_port(opts.vmc) if opts.vmc else None
     body = None
-    if opts.avatar:
-        body = _load_avatar(opts.avatar)
+    # VMC carries an avatar's bones: without one there would be nothing to send.
+    avatar = opts.avatar or ("default" if vmc_address is not None else None)
+    if avatar:
+        body = _load_avatar(avatar)
         skin = opts.viewer is not None or opts.video is not None
         stages.append(RetargetStage(body, kind=opts.retarget, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik,
                                     skin=skin))
@@ -85,12 +89,15 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     accuracy = AccuracySink()
     parts["accuracy"] = accuracy
     sinks: list = [results, accuracy]
-    if opts.vmc:
+    if vmc_address is not None:
         from live.outputs.vmc import VmcSink
 
-        host, port = parse_host_port(opts.vmc)
+        host, port = vmc_address
         sinks.append(VmcSink(host, port, rate_hz=opts.vmc_rate or None,
                              avatar_rest_joints=None if body is None else body.rest_joints))
+        if not opts.avatar:  # said once the address is known good: a mistake stays one line
+            print("livecap: --vmc without --avatar: sending the default avatar (choose one with --avatar)",
+                  file=sys.stderr, flush=True)
     if opts.viewer:
         from live.outputs.viewer import RerunSink
 

@@ -39,8 +39,9 @@ class PrintableFormatter(logging.Formatter):
 
 
 def _add_replay_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--speed", type=arg.speed, default="max",
-                   help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default)")
+    p.add_argument("--speed", type=arg.speed, default=None,
+                   help="1.0 = recorded timing, 2 = twice as fast, max = as fast as possible (default; 1.0 with "
+                   "--vmc, so receivers get the take at its own pace)")
     _add_output_options(p)
 
 
@@ -81,8 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "and the result files into --out.")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder (default: demo_out)")
     p.add_argument("--session", type=Path, default=None, help="another session to use instead of the bundled one")
-    p.add_argument("--speed", type=arg.speed, default="max",
-                   help="1.0 = recorded timing, max = as fast as possible (default)")
+    p.add_argument("--speed", type=arg.speed, default=None,
+                   help="1.0 = recorded timing, max = as fast as possible (default; 1.0 with --vmc, so receivers "
+                   "get the take at its own pace)")
     p.add_argument("--no-video", action="store_true", help="skip writing demo.mp4")
     _add_output_options(p, avatar_default="default")
 

@@ -27,10 +27,19 @@ def _run_options(args, out: Path, video: Path | None = None, sources=()):
                       vmc_rate=args.vmc_rate, viewer=args.viewer, video=video or args.video)
 
 
+def replay_speed(args) -> str:
+    """--speed as given; unset: as fast as possible, but recorded timing when frames go to a VMC
+    receiver (it applies each bundle as it arrives: a 10 s take sent in 1 s plays in 1 s)."""
+    given = getattr(args, "speed", None)
+    if given is not None:
+        return given
+    return "1" if getattr(args, "vmc", None) else "max"
+
+
 def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     from live.app.assemble import build
 
-    speed = parse_speed(args.speed)
+    speed = parse_speed(replay_speed(args))
     source = open_replay(target, speed=speed)
     out.mkdir(parents=True, exist_ok=True)
     total = count_trigger_frames(Path(target)) if Path(target).is_file() else len(getattr(source, "images", []))

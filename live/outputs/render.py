@@ -398,11 +398,22 @@ class VideoSink:
             **options,
         )
         self.path = _check_options(path, fps, self.opts)
+        self.fps = float(fps)
         self._writer: _Mp4Writer | None = _open_writer(self.path, fps, self.opts.size)
         self.codec = self._writer.codec  # "h264", or "mpeg4" without PyAV
         self._t0_ns: int | None = None
         self.frames = 0
         self.errors = 0
+
+    name = "video"
+
+    @property
+    def counters(self) -> dict[str, int]:
+        return {"frames": self.frames, "errors": self.errors}
+
+    @property
+    def details(self) -> dict[str, object]:
+        return {"codec": self.codec, "fps": self.fps, "path": str(self.path)}
 
     def send(self, result: FrameResult) -> None:
         if self._writer is None:

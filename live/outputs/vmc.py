@@ -231,9 +231,21 @@ class VmcSink:
             self._closed = True
             self._sock.close()
 
+    name = "vmc"
+
     def stats(self) -> dict[str, int]:
         return {"sent": self.sent, "coalesced": self.coalesced, "skipped": self.skipped, "refused": self.refused,
                 "errors": self.errors}
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Bundles sent, frames coalesced by the rate limit, frames without a pose, bundles the
+        receiver's host refused, errors: stats.json's ``sinks.vmc.counters``."""
+        return self.stats()
+
+    @property
+    def details(self) -> dict[str, object]:
+        return {"address": f"{self.host}:{self.port}", "rate_hz": None if self._period is None else 1.0 / self._period}
 
     def __enter__(self) -> VmcSink:
         return self

@@ -362,6 +362,23 @@ class Pipeline:
             out["details"] = details
         return out
 
+    def _sink_dicts(self) -> dict:
+        """Each sink's own event counters and facts (``counters`` / ``details`` attributes, as
+        for stages), under its ``name`` (else its class name); sinks that keep none are left out."""
+        out: dict = {}
+        for sink in self.sinks:
+            entry: dict = {}
+            counters = getattr(sink, "counters", None)
+            if isinstance(counters, dict) and counters:
+                entry["counters"] = {k: int(v) for k, v in counters.items()}
+            details = getattr(sink, "details", None)
+            if isinstance(details, dict) and details:
+                entry["details"] = details
+            if entry:
+                name = str(getattr(sink, "name", "") or type(sink).__name__)
+                out[name if name not in out else f"{name}_{len(out)}"] = entry
+        return out
+
     def _latency_origin(self) -> str:
         if self.mode == "every":
             return "processing start"
@@ -393,5 +410,6 @@ class Pipeline:
             "ring_wait_ms": self.queue_wait.summary(),
             "drops": {"ring_overwrites": overwritten, "skipped_for_latest": self.skipped_latest},
             "sink_errors": self.sink_errors,
+            "sinks": self._sink_dicts(),
             "recorded_messages": self.recorded,
         }
