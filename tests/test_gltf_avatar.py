@@ -189,3 +189,28 @@ def test_mesh_only_glb_keeps_the_skinning_field_path(tmp_path):
         node.pop("skin", None)
     body = load_avatar(_write_glb(tmp_path / "mesh.glb", doc, blob))
     assert body.rest_joints.shape == (22, 3) and np.allclose(body.weights.sum(1), 1.0, atol=1e-4)
+
+
+@needs_godette
+def test_a_pose_is_posed_into_the_t_pose(tmp_path):
+    """Godette's upper arms turned 40 degrees down (an A-pose): the arms come back out sideways,
+    bone lengths kept, and her mesh comes with them through her own skin."""
+    import math
+
+    doc, blob = _glb_chunks(GODETTE)
+    half = math.radians(40) / 2
+    for node in doc["nodes"]:
+        if node["name"] in ("upper_arm.l_Armature", "upper_arm.r_Armature"):
+            sign = 1 if ".l" in node["name"] else -1  # VRM 0.x: her left arm points along -x
+            node["rotation"] = [0, 0, sign * math.sin(half), math.cos(half)]
+    t_pose = read_gltf_humanoid(GODETTE).body
+    posed = read_gltf_humanoid(_write_glb(tmp_path / "a_pose.vrm", doc, blob)).body
+    j, ref = posed.rest_joints.astype(np.float64), t_pose.rest_joints.astype(np.float64)
+    for side in ("left", "right"):
+        sh, el, wr = (JOINT_INDEX[f"{side}_{n}"] for n in ("shoulder", "elbow", "wrist"))
+        arm = j[wr] - j[sh]
+        assert abs(arm[1]) < 1e-3 * np.linalg.norm(arm)  # horizontal
+        for a, b in ((sh, el), (el, wr)):
+            assert abs(np.linalg.norm(j[b] - j[a]) - np.linalg.norm(ref[b] - ref[a])) < 1e-4
+    # Her own rest arms droop about 2 degrees: the straightened ones differ from them by ~1.5 cm.
+    assert np.abs(posed.vertices - t_pose.vertices).max() < 0.03

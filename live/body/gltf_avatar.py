@@ -15,13 +15,15 @@ that it is a point between two); the file's skin weights are folded onto them, e
 its nearest ancestor that is a canonical joint. The result is turned into our frame: +y up, metres,
 facing +z with the left side at +x (VRM 0.x faces -z and is turned 180 degrees about y; the turn is
 decided by the humanoid's own left and right, so a file whose metadata lies still comes out right),
-feet on y = 0. The rest pose must be a T-pose: arms more than 25 degrees from horizontal are an
-A-pose, refused in one line (an avatar's own rest pose is posed into the T-pose by later work).
+feet on y = 0. The rest pose must be a T-pose: when the arms are more than 25 degrees from
+horizontal (an A-pose), each upper arm and then each forearm is turned about its joint to point
+straight out sideways, and the mesh follows through the file's own skin.
 """
 
 from __future__ import annotations
 
 import base64
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +32,8 @@ import numpy as np
 from live.body.body import Body
 from live.core.errors import FormatError, UserInputError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
+
+log = logging.getLogger(__name__)
 
 GLTF_SUFFIXES = (".vrm", ".glb", ".gltf")
 MAX_FILE_BYTES = 256 * 1024 * 1024
@@ -489,6 +493,8 @@ def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
     left_deg, right_deg = _arm_angles(world, src, left_sign)
     if max(left_deg, right_deg) > TPOSE_TOLERANCE_DEG:
         world = _pose_arms_to_t(world, parents, src, left_sign)
+        log.info("%s: arms %.0f / %.0f degrees from the T-pose (an A-pose), posed into the T-pose by its own skin",
+                 where, left_deg, right_deg)
     owners = {spec: JOINT_INDEX[j] for j, spec in src.items() if isinstance(spec, int)}
     fold = np.zeros(len(doc.nodes), np.int64)  # node -> canonical joint: itself or its nearest owner above
     for n in range(len(doc.nodes)):
