@@ -24,7 +24,7 @@ from live.outputs.unity import (
     quat_from_unity,
     quat_to_unity,
 )
-from live.outputs.vmc import VmcSink, encode_bundle, pose_from_vmc, vmc_messages
+from live.outputs.vmc import VmcSink, encode_bundle, encode_bundles, pose_from_vmc, vmc_messages
 
 M = np.diag([-1.0, 1.0, 1.0])
 
@@ -197,7 +197,7 @@ def test_replay_at_full_speed_delivers_every_frame_exactly(marionette):
             sink.send(_result(i, rot[i], root[i], conf=0.1 if i == 7 else 0.9))
         marionette.wait_for(start + 50)  # flow control: a burst never outruns the socket buffer
     sink.close()
-    assert sink.stats() == {"sent": n, "coalesced": 0, "skipped": 0, "refused": 0, "errors": 0}
+    assert sink.stats() == {"sent": n, "bundles": n, "coalesced": 0, "skipped": 0, "refused": 0, "errors": 0}
     assert len(marionette.poses) == n
     for i, (pose, ok) in enumerate(marionette.poses):
         assert ok[:3] == (1, 3, 0)
@@ -329,3 +329,38 @@ def test_unset_speed_is_max_except_with_vmc():
     assert replay_speed(Namespace(speed=None, vmc="127.0.0.1:39539")) == "1"
     assert replay_speed(Namespace(speed="max", vmc="127.0.0.1:39539")) == "max"
     assert replay_speed(Namespace(speed="2", vmc=None)) == "2"
+
+
+def test_bundles_split_to_fit_an_mtu_keep_every_message_in_order():
+    from pythonosc.osc_bundle import OscBundle
+
+    from live.outputs.vmc import MIN_BUNDLE_BYTES
+
+    rot, root = _motion(1)
+    msgs = vmc_messages(root[0], rot[0], default_rest_joints(), 0.5)
+    whole = encode_bundle(msgs)
+    assert len(whole) > 1500  # one frame is above an Ethernet MTU
+    for limit in (MIN_BUNDLE_BYTES, 600, 1400):
+        parts = encode_bundles(msgs, limit)
+        assert len(parts) >= -(-len(whole) // limit)  # no fewer than the bytes need
+        assert all(len(p) <= limit for p in parts)
+        got = [(m.address, list(m.params)) for p in parts for m in OscBundle(p)]
+        want = [(m.address, list(m.params)) for m in OscBundle(whole)]
+        assert got == want and got[0][0] == "/VMC/Ext/OK"
+    assert encode_bundles(msgs) == [whole]
+    with pytest.raises(UserInputError):
+        encode_bundles(msgs, 100)
+    with pytest.raises(UserInputError):
+        VmcSink("127.0.0.1", 39539, max_bundle_bytes=70000)
+
+
+def test_split_frames_rebuild_the_same_poses(marionette):
+    rot, root = _motion(20, seed=4)
+    with VmcSink("127.0.0.1", marionette.port, rate_hz=None, max_bundle_bytes=1400) as sink:
+        for i in range(20):
+            sink.send(_result(i, rot[i], root[i]))
+    assert sink.sent == 20 and sink.bundles == 40 and sink.errors == 0
+    marionette.wait_for(20)
+    for i, (pose, _ok) in enumerate(marionette.poses):
+        np.testing.assert_allclose(pose.root, root[i], atol=1e-5)
+        np.testing.assert_allclose(np.abs(np.sum(pose.rotations * quat_normalize(rot[i]), -1)), 1.0, atol=1e-5)

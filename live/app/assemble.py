@@ -26,6 +26,7 @@ class RunOptions:
     lag: int = 0
     vmc: str | None = None
     vmc_rate: float = 60.0
+    vmc_mtu: int | None = None
     viewer: str | None = None
     video: Path | None = None
     #: The take's frame rate (the depth stream's, see take_fps): avatar.bvh's Frame Time and the
@@ -93,7 +94,7 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
         from live.outputs.vmc import VmcSink
 
         host, port = vmc_address
-        sinks.append(VmcSink(host, port, rate_hz=opts.vmc_rate or None,
+        sinks.append(VmcSink(host, port, rate_hz=opts.vmc_rate or None, max_bundle_bytes=opts.vmc_mtu,
                              avatar_rest_joints=None if body is None else body.rest_joints))
         if not opts.avatar:  # said once the address is known good: a mistake stays one line
             print("livecap: --vmc without --avatar: sending the default avatar (choose one with --avatar)",

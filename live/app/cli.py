@@ -18,6 +18,7 @@ LAG_HELP = ("skeleton lag in frames at 30 fps: 0 = online (default); 2 = the shi
             "each skeleton 67 ms later with ~40 %% less jitter")
 #: Exit status when the machine, not the user, is at fault (out of memory): still one line.
 EXIT_FAILURE = 1
+VMC_MTU = arg.number(int, low=256, high=65507)  # live.outputs.vmc MIN_BUNDLE_BYTES..MAX_BUNDLE_BYTES
 #: Exit status when the reader of stdout went away (``livecap info X --json | head``): 128 + SIGPIPE,
 #: what a shell reports for `cat` in the same place, so `set -o pipefail` scripts see it as usual.
 EXIT_BROKEN_PIPE = 141
@@ -58,6 +59,8 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
     p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
                    "(e.g. 127.0.0.1:39539); off unless given")
     p.add_argument("--vmc-rate", type=arg.vmc_rate, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")
+    p.add_argument("--vmc-mtu", type=VMC_MTU, default=None, metavar="BYTES", help="split each VMC frame into bundles "
+                   "of at most BYTES (e.g. 1400 over Wi-Fi or Ethernet; default: one bundle per frame, ~1,850 bytes)")
     p.add_argument("--viewer", nargs="?", const="spawn", default=None, metavar="spawn|web[:ADDR]|save:FILE.rrd",
                    help="show the live viewer (Rerun; the viewer extra): spawn the native viewer, serve the web "
                    "viewer on 127.0.0.1 (web:0.0.0.0 serves the local network), or save a recording")

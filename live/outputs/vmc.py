@@ -8,6 +8,10 @@ VMC (https://protocol.vmc.info) is OSC over UDP. Every frame becomes one OSC bun
     /VMC/Ext/Root/Pos  s "root", f px, py, pz, f qx, qy, qz, qw
     /VMC/Ext/Bone/Pos  s bone,   f px, py, pz, f qx, qy, qz, qw      (x 22, canonical order)
 
+With ``max_bundle_bytes`` (``--vmc-mtu``) a frame's messages are split, in order, over as many
+bundles as keep each datagram within that size (a 22-bone frame is ~1,850 bytes: over Ethernet's
+1,500-byte MTU it travels as IP fragments, and one lost fragment loses the frame).
+
 Positions and rotations are Unity's (left-handed, see live/outputs/unity.py). Bone values are
 Unity *local* values (Transform.localPosition / localRotation): the rotation is our canonical
 local rotation (identity = T-pose, as normalised humanoids expect), the position is the rest
@@ -101,16 +105,51 @@ def vmc_messages(
     return msgs
 
 
+#: Bytes an OSC bundle takes besides its messages ("#bundle\0" and the timetag), and per message
+#: (its int32 size).
+_BUNDLE_HEADER, _ELEMENT_HEADER = 16, 4
+#: The smallest --vmc-mtu: room for the largest message of a frame (a bone's, ~80 bytes) and more.
+MIN_BUNDLE_BYTES = 256
+MAX_BUNDLE_BYTES = 65507  # the largest UDP payload over IPv4
+
+
+def _build_message(address: str, args: list):
+    msg = OscMessageBuilder(address=address)
+    for a in args:
+        kind = "s" if isinstance(a, str) else "i" if isinstance(a, (int, np.integer)) else "f"
+        msg.add_arg(a, kind)
+    return msg.build()
+
+
 def encode_bundle(messages: Sequence[tuple[str, list]]) -> bytes:
     """(address, args) pairs -> one OSC bundle datagram; ints as 'i', floats as float32 'f'."""
     bundle = OscBundleBuilder(IMMEDIATELY)
     for address, args in messages:
-        msg = OscMessageBuilder(address=address)
-        for a in args:
-            kind = "s" if isinstance(a, str) else "i" if isinstance(a, (int, np.integer)) else "f"
-            msg.add_arg(a, kind)
-        bundle.add_content(msg.build())
+        bundle.add_content(_build_message(address, args))
     return bundle.build().dgram
+
+
+def encode_bundles(messages: Sequence[tuple[str, list]], max_bytes: int | None = None) -> list[bytes]:
+    """(address, args) pairs -> OSC bundle datagrams of at most max_bytes each (None: one bundle),
+    messages kept in order, so a frame fits one network MTU (a 22-bone frame is ~1,850 bytes,
+    above Ethernet's 1,500: one lost IP fragment would lose the whole frame). The first bundle
+    starts with /VMC/Ext/OK, as receivers expect."""
+    if max_bytes is None:
+        return [encode_bundle(messages)]
+    if not MIN_BUNDLE_BYTES <= max_bytes <= MAX_BUNDLE_BYTES:
+        raise UserInputError(f"VMC bundle size must be in {MIN_BUNDLE_BYTES}..{MAX_BUNDLE_BYTES} bytes, got {max_bytes}")
+    out: list[bytes] = []
+    bundle, size = OscBundleBuilder(IMMEDIATELY), _BUNDLE_HEADER
+    for address, args in messages:
+        msg = _build_message(address, args)
+        need = _ELEMENT_HEADER + msg.size
+        if size + need > max_bytes and size > _BUNDLE_HEADER:
+            out.append(bundle.build().dgram)
+            bundle, size = OscBundleBuilder(IMMEDIATELY), _BUNDLE_HEADER
+        bundle.add_content(msg)
+        size += need
+    out.append(bundle.build().dgram)
+    return out
 
 
 def pose_from_vmc(
@@ -157,6 +196,7 @@ class VmcSink:
         avatar_rest_joints: np.ndarray | None = None,
         min_confidence: float = 0.3,
         clock: Callable[[], float] = time.monotonic,
+        max_bundle_bytes: int | None = None,
     ) -> None:
         if not host:
             raise UserInputError("VMC needs a host name or address to send to")
@@ -164,6 +204,10 @@ class VmcSink:
             raise UserInputError(f"VMC port must be in 1..65535, got {port}")
         if rate_hz is not None and not rate_hz > 0:
             raise UserInputError(f"VMC rate must be > 0 Hz or None, got {rate_hz}")
+        if max_bundle_bytes is not None and not MIN_BUNDLE_BYTES <= int(max_bundle_bytes) <= MAX_BUNDLE_BYTES:
+            raise UserInputError(f"VMC bundle size (--vmc-mtu) must be in {MIN_BUNDLE_BYTES}..{MAX_BUNDLE_BYTES} "
+                                 f"bytes, got {max_bundle_bytes}")
+        self.max_bundle_bytes = None if max_bundle_bytes is None else int(max_bundle_bytes)
         rest = default_rest_joints() if avatar_rest_joints is None else np.asarray(avatar_rest_joints)
         if rest.shape != (NUM_JOINTS, 3):
             raise UserInputError(f"avatar rest joints must be (22, 3), got {rest.shape}")
@@ -187,7 +231,8 @@ class VmcSink:
         self._pending: FrameResult | None = None
         self._t0_ns: int | None = None
         self._closed = False
-        self.sent = 0        # bundles sent
+        self.sent = 0        # frames sent (one bundle each, or several under max_bundle_bytes)
+        self.bundles = 0     # datagrams sent
         self.coalesced = 0   # frames replaced by a newer one before their turn
         self.skipped = 0     # frames without an avatar pose
         self.refused = 0     # bundles the receiver's host refused (no app listening yet)
@@ -234,18 +279,19 @@ class VmcSink:
     name = "vmc"
 
     def stats(self) -> dict[str, int]:
-        return {"sent": self.sent, "coalesced": self.coalesced, "skipped": self.skipped, "refused": self.refused,
-                "errors": self.errors}
+        return {"sent": self.sent, "bundles": self.bundles, "coalesced": self.coalesced, "skipped": self.skipped,
+                "refused": self.refused, "errors": self.errors}
 
     @property
     def counters(self) -> dict[str, int]:
-        """Bundles sent, frames coalesced by the rate limit, frames without a pose, bundles the
+        """Frames sent, datagrams (bundles) sent, frames coalesced by the rate limit, frames without a pose, bundles the
         receiver's host refused, errors: stats.json's ``sinks.vmc.counters``."""
         return self.stats()
 
     @property
     def details(self) -> dict[str, object]:
-        return {"address": f"{self.host}:{self.port}", "rate_hz": None if self._period is None else 1.0 / self._period}
+        return {"address": f"{self.host}:{self.port}", "rate_hz": None if self._period is None else 1.0 / self._period,
+                "max_bundle_bytes": self.max_bundle_bytes}
 
     def __enter__(self) -> VmcSink:
         return self
@@ -263,13 +309,15 @@ class VmcSink:
             tracking_ok = float(np.mean(result.skeleton.confidence)) >= self._min_conf
         avatar = result.avatar
         msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok)
-        try:
-            self._sock.send(encode_bundle(msgs))
-        except ConnectionRefusedError:
-            # The ICMP answer to an earlier bundle: nobody listens there (yet). VMC apps start
-            # and stop independently of the performer; the next bundles go out as usual.
-            self.refused += 1
-            return
+        for datagram in encode_bundles(msgs, self.max_bundle_bytes):
+            try:
+                self._sock.send(datagram)
+            except ConnectionRefusedError:
+                # The ICMP answer to an earlier bundle: nobody listens there (yet). VMC apps start
+                # and stop independently of the performer; the next frames go out as usual.
+                self.refused += 1
+                return
+            self.bundles += 1
         self.sent += 1
 
     def _error(self, e: Exception) -> None:
