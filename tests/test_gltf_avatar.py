@@ -214,3 +214,16 @@ def test_a_pose_is_posed_into_the_t_pose(tmp_path):
             assert abs(np.linalg.norm(j[b] - j[a]) - np.linalg.norm(ref[b] - ref[a])) < 1e-4
     # Her own rest arms droop about 2 degrees: the straightened ones differ from them by ~1.5 cm.
     assert np.abs(posed.vertices - t_pose.vertices).max() < 0.03
+
+
+@needs_godette
+@pytest.mark.parametrize("field, value", [(("accessors", 0, "count"), "many"), (("nodes", 5, "children"), [[1]]),
+                                          (("skins", 0, "joints"), None), (("accessors", 2, "bufferView"), 999)])
+def test_malformed_fields_are_one_line(tmp_path, capsys, field, value):
+    doc, blob = _glb_chunks(GODETTE)
+    target = doc
+    for key in field[:-1]:
+        target = target[key]
+    target[field[-1]] = value
+    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "malformed.vrm", doc, blob))
+    assert "malformed.vrm" in line

@@ -480,10 +480,22 @@ def _place_missing(joints: np.ndarray, src: dict) -> None:
         joints[spine1] = joints[pelvis] + (joints[spine2] - joints[pelvis]) / 3.0
 
 
+#: What a field of the wrong JSON type (a string for a count, a list for an index) raises deep in the
+#: reading; every one is a malformed file, reported in one line.
+_MALFORMED = (TypeError, ValueError, KeyError, AttributeError, IndexError, OverflowError)
+
+
 def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
     """The avatar of a VRM 0.x / 1.0 file or a glTF with a recognisable skin (module docstring)."""
     path = Path(path)
-    where = str(path)
+    try:
+        with np.errstate(all="ignore"):  # values are checked (finite, in range) where they are read
+            return _read(path, str(path))
+    except _MALFORMED as e:
+        raise FormatError(f"a malformed glTF ({type(e).__name__}: {e})", path=str(path)) from None
+
+
+def _read(path: Path, where: str) -> GltfHumanoid:
     doc, buffers = _open(path)
     world, parents = _world_matrices(doc, where)
     kind, bones = _humanoid_bones(doc, where)
@@ -513,6 +525,8 @@ def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
     verts[:, 1] -= floor
     joints[:, 1] -= floor
     height = float(np.ptp(verts[:, 1]))
+    if not (np.isfinite(verts).all() and np.isfinite(joints).all()):
+        raise FormatError("its skin poses vertices at NaN or infinity (bad inverse bind matrices?)", path=where)
     if not 0.1 < height < 10.0:
         raise FormatError(f"the avatar is {height:.3g} m tall: not a humanoid in metres", path=where)
     if joints[JOINT_INDEX["pelvis"], 1] <= 0:
@@ -538,6 +552,9 @@ def gltf_is_rigged(path: str | Path) -> bool:
     path = Path(path)
     if path.suffix.lower() == ".vrm":
         return True
-    doc, _ = _open(path)
-    ext = doc.extensions or {}
-    return bool(doc.skins) or isinstance(ext.get("VRM"), dict) or isinstance(ext.get("VRMC_vrm"), dict)
+    try:
+        doc, _ = _open(path)
+        ext = doc.extensions or {}
+        return bool(doc.skins) or isinstance(ext.get("VRM"), dict) or isinstance(ext.get("VRMC_vrm"), dict)
+    except _MALFORMED as e:
+        raise FormatError(f"a malformed glTF ({type(e).__name__}: {e})", path=str(path)) from None
