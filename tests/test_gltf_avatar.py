@@ -125,11 +125,27 @@ def test_plain_skin_maps_by_bone_names(tmp_path):
 
 @needs_godette
 def test_demo_onto_godette(tmp_path, capsys):
-    out = tmp_path / "out"
-    assert main(["demo", "--avatar", str(GODETTE), "--no-video", "--out", str(out), "--quiet"]) == 0
-    avatar = np.load(out / "avatar.npz")
-    assert avatar["joints"].shape[0] > 100 and np.isfinite(avatar["joints"]).all()
-    np.testing.assert_allclose(avatar["rest_joints"], read_gltf_humanoid(GODETTE).body.rest_joints, atol=1e-6)
+    """The demo take onto Godette, VRM 0.x and her VRM 1.0 conversion: the same poses, finite, her
+    left side on the performer's left."""
+    from research.vrm1_from_vrm0 import convert
+
+    vrm1 = tmp_path / "godette_vrm1.vrm"
+    convert(GODETTE, vrm1)
+    joints = []
+    for name, avatar_file in (("vrm0", GODETTE), ("vrm1", vrm1)):
+        out = tmp_path / name
+        assert main(["demo", "--avatar", str(avatar_file), "--no-video", "--out", str(out), "--quiet"]) == 0
+        avatar = np.load(out / "avatar.npz")
+        assert avatar["joints"].shape[0] > 100 and np.isfinite(avatar["joints"]).all()
+        np.testing.assert_allclose(avatar["rest_joints"], read_gltf_humanoid(GODETTE).body.rest_joints, atol=1e-6)
+        joints.append(avatar["joints"])
+    np.testing.assert_allclose(joints[1], joints[0], atol=1e-3)
+    performer = np.load(tmp_path / "vrm0" / "skeleton.npz")["joints"]
+    for a, b, least in (("left_hip", "right_hip", 0.99), ("left_wrist", "right_wrist", 0.9)):
+        da = joints[0][:, JOINT_INDEX[a]] - joints[0][:, JOINT_INDEX[b]]
+        dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
+        cos = np.sum(da * dp, axis=1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
+        assert cos.min() > least, (a, cos.min())
 
 
 def _cli_error(tmp_path, capsys, avatar: Path) -> str:
