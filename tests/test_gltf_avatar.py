@@ -243,3 +243,18 @@ def test_malformed_fields_are_one_line(tmp_path, capsys, field, value):
     target[field[-1]] = value
     line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "malformed.vrm", doc, blob))
     assert "malformed.vrm" in line
+
+
+@needs_godette
+def test_gltf_json_with_a_bin_file_beside_it(tmp_path, capsys):
+    doc, blob = _glb_chunks(GODETTE)
+    doc["buffers"][0]["uri"] = "godette.bin"
+    (tmp_path / "godette.bin").write_bytes(blob)
+    (tmp_path / "godette.gltf").write_text(json.dumps(doc))
+    b = read_gltf_humanoid(tmp_path / "godette.gltf").body
+    np.testing.assert_array_equal(b.rest_joints, read_gltf_humanoid(GODETTE).body.rest_joints)
+    # A buffer naming a file outside the glTF's folder is refused, never read.
+    doc["buffers"][0]["uri"] = "../godette.bin"
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "escape.gltf").write_text(json.dumps(doc))
+    assert "not a file beside the glTF" in _cli_error(tmp_path, capsys, tmp_path / "sub" / "escape.gltf")

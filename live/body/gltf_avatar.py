@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from live.body.body import Body
-from live.core.errors import FormatError, UserInputError
+from live.core.errors import FormatError, LivecapError, UserInputError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
 
 log = logging.getLogger(__name__)
@@ -491,6 +491,8 @@ def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
     try:
         with np.errstate(all="ignore"):  # values are checked (finite, in range) where they are read
             return _read(path, str(path))
+    except LivecapError:
+        raise
     except _MALFORMED as e:
         raise FormatError(f"a malformed glTF ({type(e).__name__}: {e})", path=str(path)) from None
 
@@ -556,5 +558,7 @@ def gltf_is_rigged(path: str | Path) -> bool:
         doc, _ = _open(path)
         ext = doc.extensions or {}
         return bool(doc.skins) or isinstance(ext.get("VRM"), dict) or isinstance(ext.get("VRMC_vrm"), dict)
+    except LivecapError:
+        raise
     except _MALFORMED as e:
         raise FormatError(f"a malformed glTF ({type(e).__name__}: {e})", path=str(path)) from None
