@@ -1,6 +1,7 @@
 """Avatars: ``load_avatar(spec) -> Body`` for a body preset, a body file, or any T-pose mesh / cloud.
 
-A preset name, a body ``.npz`` or an ``anny:...`` phenotype goes to live.body.library.load_body. Any other
+A preset name, a body ``.npz`` or an ``anny:...`` phenotype goes to live.body.library.load_body. A VRM,
+or a glTF / GLB with a skin, brings its own skeleton and skin (live/body/gltf_avatar.py). Any other
 file that open3d reads (OBJ, PLY, glTF/GLB, OFF, STL as meshes; PLY/PCD/XYZ/PTS as point clouds)
 is taken as a humanoid in the canonical T-pose (facing +z, y up, arms along x), in metres (a figure
 taller than 3 units is read as centimetres, taller than 300 as millimetres). It is put on the floor

@@ -1,7 +1,7 @@
 """Avatars from VRM and glTF humanoids: ``load_gltf_avatar(path) -> Body`` for ``.vrm``, ``.glb``, ``.gltf``.
 
-The file is read with pygltflib (the container, its JSON and its buffers); its accessors are decoded
-here with numpy, every one checked against the bytes its buffer really holds. What is read:
+The file is read by live/body/gltf_file.py (pygltflib for the container, numpy for the accessors,
+every one checked against the bytes its buffer holds). What is read:
 
 - the humanoid bone map: VRM 0.x ``extensions.VRM.humanoid.humanBones`` ([{bone, node}]), VRM 1.0
   ``extensions.VRMC_vrm.humanoid.humanBones`` ({bone: {node}}), or, for a plain glTF skin, the bone
@@ -22,7 +22,6 @@ straight out sideways, and the mesh follows through the file's own skin.
 
 from __future__ import annotations
 
-import base64
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,13 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from live.body.body import Body
-from live.core.errors import FormatError, LivecapError, UserInputError
+from live.body.gltf_file import open_gltf, read_accessor, world_matrices
+from live.core.errors import FormatError, LivecapError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
 
 log = logging.getLogger(__name__)
 
 GLTF_SUFFIXES = (".vrm", ".glb", ".gltf")
-MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_VERTICES = 2_000_000
 MAX_FACES = 4_000_000
 #: Arms further than this from horizontal in the rest pose are not a T-pose.
@@ -54,8 +53,6 @@ REQUIRED_BONES = ("hips", "spine", "head", "leftUpperArm", "leftLowerArm", "left
                   "rightLowerArm", "rightHand", "leftUpperLeg", "leftLowerLeg", "leftFoot", "rightUpperLeg",
                   "rightLowerLeg", "rightFoot")
 
-_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 
 
 @dataclass(frozen=True)
@@ -80,147 +77,6 @@ class GltfHumanoid:
 
 def is_gltf_file(spec: str | Path) -> bool:
     return Path(str(spec)).suffix.lower() in GLTF_SUFFIXES
-
-
-# ----------------------------------------------------------------------------- reading
-
-
-def _open(path: Path):
-    """The pygltflib document with every buffer as bytes (list), after the size and magic checks."""
-    import pygltflib
-
-    if not path.is_file():
-        raise UserInputError(f"no avatar file {path}")
-    size = path.stat().st_size
-    if size > MAX_FILE_BYTES:
-        raise FormatError(f"{size / 2**20:.0f} MiB: larger than the {MAX_FILE_BYTES >> 20} MiB an avatar file may be",
-                          path=str(path))
-    with open(path, "rb") as f:
-        head = f.read(4)
-    try:
-        if head == b"glTF":
-            doc = pygltflib.GLTF2.load_binary(str(path))
-        elif head[:1] in (b"{", b" ", b"\n", b"\r", b"\t"):
-            doc = pygltflib.GLTF2.load_json(str(path))
-        else:
-            raise FormatError("not a glTF file (neither a binary glTF 'glTF' header nor glTF JSON)", path=str(path))
-    except FormatError:
-        raise
-    except Exception as e:  # pygltflib raises whatever its JSON and struct parsing meet
-        raise FormatError(f"not a readable glTF file ({type(e).__name__}: {e})", path=str(path)) from None
-    if doc is None or not doc.nodes:
-        raise FormatError("not a readable glTF file (no nodes)", path=str(path))
-    buffers = []
-    for i, buf in enumerate(doc.buffers or []):
-        buffers.append(_buffer_bytes(doc, i, buf, path))
-    return doc, buffers
-
-
-def _buffer_bytes(doc, i: int, buf, path: Path) -> bytes:
-    uri = buf.uri
-    if uri is None:
-        blob = doc.binary_blob() if i == 0 else None
-        if blob is None:
-            raise FormatError(f"buffer {i} has no data (no uri and no GLB binary chunk)", path=str(path))
-        data = bytes(blob)
-    elif uri.startswith("data:"):
-        try:
-            data = base64.b64decode(uri.split(",", 1)[1], validate=False)
-        except Exception as e:
-            raise FormatError(f"buffer {i}: a data URI that does not decode ({e})", path=str(path)) from None
-    else:
-        # An external file beside the glTF, never a path that leaves its folder (names are not trusted).
-        target = (path.parent / uri).resolve()
-        if target.parent != path.parent.resolve() or not target.is_file():
-            raise FormatError(f"buffer {i}: {uri!r} is not a file beside the glTF", path=str(path))
-        data = target.read_bytes()
-    if len(data) < (buf.byteLength or 0):
-        raise FormatError(f"buffer {i} holds {len(data)} bytes, fewer than the {buf.byteLength} it declares",
-                          path=str(path))
-    return data
-
-
-def _accessor(doc, buffers: list[bytes], index: int, where: str) -> np.ndarray:
-    """Accessor ``index`` as a float64 (count, components) array (normalized integers scaled)."""
-    if not 0 <= index < len(doc.accessors or []):
-        raise FormatError(f"accessor {index} does not exist", path=where)
-    acc = doc.accessors[index]
-    if acc.sparse is not None:
-        raise FormatError(f"accessor {index} is sparse, which avatars do not use", path=where)
-    if acc.componentType not in _DTYPES or acc.type not in _COMPONENTS:
-        raise FormatError(f"accessor {index}: unknown component type {acc.componentType} / {acc.type}", path=where)
-    dtype = np.dtype(_DTYPES[acc.componentType]).newbyteorder("<")
-    ncomp, count = _COMPONENTS[acc.type], int(acc.count)
-    if acc.bufferView is None:
-        return np.zeros((count, ncomp))
-    if not 0 <= acc.bufferView < len(doc.bufferViews or []):
-        raise FormatError(f"accessor {index}: buffer view {acc.bufferView} does not exist", path=where)
-    view = doc.bufferViews[acc.bufferView]
-    if not 0 <= view.buffer < len(buffers):
-        raise FormatError(f"buffer view {acc.bufferView}: buffer {view.buffer} does not exist", path=where)
-    data = buffers[view.buffer]
-    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
-    elem = dtype.itemsize * ncomp
-    stride = view.byteStride or elem
-    end_view = (view.byteOffset or 0) + view.byteLength
-    need = start + (stride * (count - 1) + elem if count else 0)
-    if stride < elem or need > min(end_view, len(data)) or start < 0:
-        raise FormatError(f"accessor {index} reads past its buffer ({need} > {min(end_view, len(data))} bytes)",
-                          path=where)
-    raw = np.lib.stride_tricks.as_strided(
-        np.frombuffer(data, np.uint8, count=need - start if count else 0, offset=start),
-        shape=(count, elem), strides=(stride, 1)) if count else np.zeros((0, elem), np.uint8)
-    out = np.ascontiguousarray(raw).view(dtype).reshape(count, ncomp).astype(np.float64)
-    if acc.normalized and dtype.kind in "iu":
-        out /= float(np.iinfo(dtype).max)
-    if not np.isfinite(out).all():
-        raise FormatError(f"accessor {index} holds NaN or infinite values", path=where)
-    return out
-
-
-def _local_matrix(node) -> np.ndarray:
-    if node.matrix is not None and len(node.matrix) == 16:
-        return np.asarray(node.matrix, np.float64).reshape(4, 4).T  # glTF matrices are column-major
-    m = np.eye(4)
-    if node.scale is not None:
-        m[:3, :3] = np.diag(np.asarray(node.scale, np.float64))
-    if node.rotation is not None:
-        x, y, z, w = (float(c) for c in node.rotation)  # glTF quaternions are (x, y, z, w)
-        n = np.sqrt(x * x + y * y + z * z + w * w) or 1.0
-        x, y, z, w = x / n, y / n, z / n, w / n
-        r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-        m[:3, :3] = r @ m[:3, :3]
-    if node.translation is not None:
-        m[:3, 3] = np.asarray(node.translation, np.float64)
-    return m
-
-
-def _world_matrices(doc, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """(N, 4, 4) world matrices of the nodes at rest and (N,) parents (-1 for roots)."""
-    n = len(doc.nodes)
-    parents = np.full(n, -1, np.int64)
-    for i, node in enumerate(doc.nodes):
-        for c in node.children or []:
-            if not 0 <= c < n or parents[c] >= 0 or c == i:
-                raise FormatError(f"node {i} has a bad child {c} (missing, shared or itself)", path=where)
-            parents[c] = i
-    world = np.full((n, 4, 4), np.nan)
-    for i in range(n):
-        chain, j = [], i
-        while j >= 0 and np.isnan(world[j, 0, 0]):
-            chain.append(j)
-            j = int(parents[j])
-            if len(chain) > n:
-                raise FormatError("the node tree has a cycle", path=where)
-        m = np.eye(4) if j < 0 else world[j]
-        for k in reversed(chain):
-            m = m @ _local_matrix(doc.nodes[k])
-            world[k] = m
-    if not np.isfinite(world).all():
-        raise FormatError("a node transform holds NaN or infinite values", path=where)
-    return world, parents
 
 
 # ----------------------------------------------------------------------------- the humanoid
@@ -349,7 +205,7 @@ def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
             sj = np.array([int(j) for j in skin.joints or []], np.int64)
             if len(sj) == 0 or sj.min() < 0 or sj.max() >= len(doc.nodes):
                 raise FormatError(f"skin {node.skin} names joints that do not exist", path=where)
-            ibm = _accessor(doc, buffers, skin.inverseBindMatrices, where).reshape(-1, 4, 4).transpose(0, 2, 1) \
+            ibm = read_accessor(doc, buffers, skin.inverseBindMatrices, where).reshape(-1, 4, 4).transpose(0, 2, 1) \
                 if skin.inverseBindMatrices is not None else np.tile(np.eye(4), (len(sj), 1, 1))
             if len(ibm) < len(sj):
                 raise FormatError(f"skin {node.skin} has {len(ibm)} inverse bind matrices for {len(sj)} joints",
@@ -362,14 +218,14 @@ def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
             a = prim.attributes
             key = (a.POSITION, a.JOINTS_0, a.WEIGHTS_0)
             if key not in seen:
-                p = _accessor(doc, buffers, a.POSITION, where)[:, :3]
+                p = read_accessor(doc, buffers, a.POSITION, where)[:, :3]
                 count += len(p)
                 if count > MAX_VERTICES:
                     raise FormatError(f"more than the {MAX_VERTICES} vertices an avatar may have", path=where)
                 ph = np.concatenate([p, np.ones((len(p), 1))], axis=1)
                 if skin is not None and a.JOINTS_0 is not None and a.WEIGHTS_0 is not None:
-                    ji = _accessor(doc, buffers, a.JOINTS_0, where).astype(np.int64)
-                    wi = _accessor(doc, buffers, a.WEIGHTS_0, where)
+                    ji = read_accessor(doc, buffers, a.JOINTS_0, where).astype(np.int64)
+                    wi = read_accessor(doc, buffers, a.WEIGHTS_0, where)
                     if len(ji) != len(p) or len(wi) != len(p) or ji.min(initial=0) < 0 or ji.max(initial=0) >= len(sj):
                         raise FormatError("JOINTS_0 / WEIGHTS_0 do not match the positions or the skin", path=where)
                     wi = np.clip(wi, 0.0, None)
@@ -386,7 +242,7 @@ def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
                 verts.append(v)
                 weights.append(w)
             offset, n_here = seen[key]
-            idx = _accessor(doc, buffers, prim.indices, where)[:, 0].astype(np.int64) \
+            idx = read_accessor(doc, buffers, prim.indices, where)[:, 0].astype(np.int64) \
                 if prim.indices is not None else np.arange(n_here)
             if len(idx) % 3 or (len(idx) and (idx.min() < 0 or idx.max() >= n_here)):
                 raise FormatError("a triangle list that is not whole triangles of its own vertices", path=where)
@@ -498,8 +354,8 @@ def read_gltf_humanoid(path: str | Path) -> GltfHumanoid:
 
 
 def _read(path: Path, where: str) -> GltfHumanoid:
-    doc, buffers = _open(path)
-    world, parents = _world_matrices(doc, where)
+    doc, buffers = open_gltf(path)
+    world, parents = world_matrices(doc, where)
     kind, bones = _humanoid_bones(doc, where)
     src = _vrm_sources(bones) if kind != "skin" else _skin_sources(doc, world, parents, where)
     # Which way the file faces: its humanoid's left hand is on its +x side when it faces +z.
@@ -555,7 +411,7 @@ def gltf_is_rigged(path: str | Path) -> bool:
     if path.suffix.lower() == ".vrm":
         return True
     try:
-        doc, _ = _open(path)
+        doc, _ = open_gltf(path)
         ext = doc.extensions or {}
         return bool(doc.skins) or isinstance(ext.get("VRM"), dict) or isinstance(ext.get("VRMC_vrm"), dict)
     except LivecapError:
