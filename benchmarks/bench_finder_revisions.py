@@ -3,10 +3,10 @@
 Run: .venv/bin/python benchmarks/bench_finder_revisions.py [--rev HEAD~1] [--frames 120] [--rounds 3]
 
 The finder modules of ``--rev`` (models/skeleton/*.py as they were there) are loaded from git
-into a private package beside today's, and both find the performer in the same frames, rounds
+into a private package beside the working tree's, and both find the performer in the same frames, rounds
 alternating: the frames of benchmarks/bench_skeleton.py (virtual OAK-D, cluttered room) with
 their extrinsics, and the same frames with the extrinsics withheld (identity camera_to_world,
-as a depth folder has them: today's finder estimates up and the floor). Prints per-frame median
+as a depth folder has them: the working tree's finder estimates up and the floor). Prints per-frame median
 and p95 (ms) of each and the ratio today / revision.
 """
 
