@@ -132,20 +132,43 @@ def test_demo_onto_godette(tmp_path, capsys):
     vrm1 = tmp_path / "godette_vrm1.vrm"
     convert(GODETTE, vrm1)
     joints = []
-    for name, avatar_file in (("vrm0", GODETTE), ("vrm1", vrm1)):
+    for name, avatar_file, bvh_names in (("vrm0", GODETTE, "avatar"), ("vrm1", vrm1, "canonical")):
         out = tmp_path / name
-        assert main(["demo", "--avatar", str(avatar_file), "--no-video", "--out", str(out), "--quiet"]) == 0
+        assert main(["demo", "--avatar", str(avatar_file), "--no-video", "--out", str(out), "--quiet",
+                     "--bvh-names", bvh_names]) == 0
         avatar = np.load(out / "avatar.npz")
         assert avatar["joints"].shape[0] > 100 and np.isfinite(avatar["joints"]).all()
         np.testing.assert_allclose(avatar["rest_joints"], read_gltf_humanoid(GODETTE).body.rest_joints, atol=1e-6)
         joints.append(avatar["joints"])
     np.testing.assert_allclose(joints[1], joints[0], atol=1e-3)
+    _check_bvh_names(tmp_path)
     performer = np.load(tmp_path / "vrm0" / "skeleton.npz")["joints"]
     for a, b, least in (("left_hip", "right_hip", 0.99), ("left_wrist", "right_wrist", 0.9)):
         da = joints[0][:, JOINT_INDEX[a]] - joints[0][:, JOINT_INDEX[b]]
         dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
         cos = np.sum(da * dp, axis=1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
         assert cos.min() > least, (a, cos.min())
+
+
+def _check_bvh_names(tmp_path: Path) -> None:
+    """avatar.bvh under Godette's own bone nodes (the canonical names with --bvh-names canonical):
+    the same motion as the canonical BVH of the same avatar.npz, joint for joint."""
+    from live.io.bvh_kinematics import bvh_forward_kinematics
+    from live.io.bvh_reader import read_bvh
+    from live.io.bvh_writer import write_canonical_bvh
+
+    h = read_gltf_humanoid(GODETTE)
+    own = read_bvh(tmp_path / "vrm0" / "avatar.bvh")
+    assert set(read_bvh(tmp_path / "vrm1" / "avatar.bvh").skeleton.names) == set(JOINT_NAMES)
+    expected = {JOINT_NAMES[j]: h.node_names[node] for j, node in enumerate(h.joint_sources) if node is not None}
+    assert expected["pelvis"] == "pelvis_Armature" and len(expected) >= 20
+    a = np.load(tmp_path / "vrm0" / "avatar.npz")
+    write_canonical_bvh(tmp_path / "canonical.bvh", a["rotations"], a["root"], a["rest_joints"], 15.0)
+    canonical = read_bvh(tmp_path / "canonical.bvh")
+    by_canonical = dict(zip(canonical.skeleton.names, own.skeleton.names, strict=True))
+    assert all(by_canonical[j] == n for j, n in expected.items())
+    assert all(by_canonical[j] == j for j in JOINT_NAMES if j not in expected)
+    np.testing.assert_allclose(bvh_forward_kinematics(own)[0], bvh_forward_kinematics(canonical)[0], atol=1e-6)
 
 
 def _cli_error(tmp_path, capsys, avatar: Path) -> str:

@@ -230,3 +230,43 @@ def test_avatar_bvh_frame_time_from_the_frames_when_the_source_does_not_say(tmp_
         writer.close()
         line = next(x for x in (out / "avatar.bvh").read_text().splitlines() if x.startswith("Frame Time:"))
         assert float(line.split(":")[1]) == pytest.approx(expected, abs=1e-8)
+
+
+def test_avatar_bvh_under_the_avatars_own_names(tmp_path):
+    """The same motion under the avatar file's bone names: both BVHs parse to the same joint
+    positions, only the names differ, and a recovered run keeps the names."""
+    from live.core.skeleton import JOINT_NAMES
+    from live.io.bvh_kinematics import bvh_forward_kinematics
+    from live.io.bvh_reader import read_bvh
+
+    names = tuple(f"J_Bip_{n}" for n in JOINT_NAMES)
+    clips = {}
+    for kind, given in (("canonical", None), ("avatar", names)):
+        w = ResultsWriter(tmp_path / kind, avatar_rest_joints=REST, fps=30.0, avatar_joint_names=given,
+                          clock=_Clock(0.4))
+        for i in range(6):
+            w.send(_result(i))
+        w.close()
+        clips[kind] = read_bvh(tmp_path / kind / "avatar.bvh")
+    # The reader lists joints in file order (depth first): the same order in both files.
+    assert set(clips["canonical"].skeleton.names) == set(JOINT_NAMES)
+    assert clips["avatar"].skeleton.names == tuple(names[JOINT_NAMES.index(n)] for n in clips["canonical"].skeleton.names)
+    np.testing.assert_array_equal(clips["avatar"].channels, clips["canonical"].channels)
+    pos = {k: bvh_forward_kinematics(c)[0] for k, c in clips.items()}
+    np.testing.assert_allclose(pos["avatar"], pos["canonical"], atol=1e-6)
+    # A run killed before close: the chunks still carry the names.
+    w = ResultsWriter(tmp_path / "killed", avatar_rest_joints=REST, fps=30.0, avatar_joint_names=names,
+                      clock=_Clock(0.6))
+    for i in range(6):
+        w.send(_result(i))
+    assemble_results(tmp_path / "killed")
+    assert read_bvh(tmp_path / "killed" / "avatar.bvh").skeleton.names == clips["avatar"].skeleton.names
+
+
+@pytest.mark.parametrize("bad", [("pelvis",) * 22, ("has space",) + ("x",) * 21, ("a",)])
+def test_bvh_names_must_be_22_unique_words(tmp_path, bad):
+    from live.io.bvh_writer import write_canonical_bvh
+
+    with pytest.raises(ValueError):
+        write_canonical_bvh(tmp_path / "x.bvh", np.tile([1.0, 0, 0, 0], (2, 22, 1)), np.zeros((2, 3)), REST, 30.0,
+                            names=bad)

@@ -32,6 +32,9 @@ class RunOptions:
     #: The take's frame rate (the depth stream's, see take_fps): avatar.bvh's Frame Time and the
     #: video's rate. None: avatar.bvh from the frames' timestamps, the video at DEFAULT_FPS.
     fps: float | None = None
+    #: avatar.bvh's joint names: "avatar" (the avatar file's own bone names, when it has them) or
+    #: "canonical" (the 22 canonical names).
+    bvh_names: str = "avatar"
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
@@ -83,7 +86,9 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
         stages.append(RetargetStage(body, kind=opts.retarget, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik,
                                     skin=skin))
         parts["avatar"] = body
-    results = ResultsWriter(opts.out, avatar_rest_joints=None if body is None else body.rest_joints, fps=opts.fps)
+    names = body.joint_names if body is not None and opts.bvh_names == "avatar" else None
+    results = ResultsWriter(opts.out, avatar_rest_joints=None if body is None else body.rest_joints, fps=opts.fps,
+                            avatar_joint_names=names)
     parts["results"] = results
     from live.pipeline.accuracy import AccuracySink
 

@@ -65,6 +65,9 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
                    help="show the live viewer (Rerun; the viewer extra): spawn the native viewer, serve the web "
                    "viewer on 127.0.0.1 (web:0.0.0.0 serves the local network), or save a recording")
     p.add_argument("--video", type=Path, default=None, help="also write a rendered video (.mp4)")
+    p.add_argument("--bvh-names", choices=["avatar", "canonical"], default="avatar",
+                   help="avatar.bvh's joint names: the avatar file's own bones (default, when a VRM / glTF "
+                   "avatar has them) or the 22 canonical names")
     _add_force(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -13,7 +13,8 @@ import numpy as np
 class Body:
     """vertices (V,3) float32 T-pose mesh, y up, feet on y=0, facing +z; faces (F,3) int32;
     rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
-    phenotype: the Anny parameters it was made from, or None. Arrays of a loaded body are
+    phenotype: the Anny parameters it was made from, or None; joint_names: the avatar file's own
+    name for each of the 22 joints (a VRM's humanoid bone nodes), or None (canonical names). Arrays of a loaded body are
     read-only (load_body shares them between callers)."""
 
     vertices: np.ndarray
@@ -23,6 +24,7 @@ class Body:
     parents: np.ndarray
     name: str
     phenotype: dict | None = None
+    joint_names: tuple[str, ...] | None = None
 
     @property
     def height(self) -> float:

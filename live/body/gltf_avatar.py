@@ -391,11 +391,23 @@ def _read(path: Path, where: str) -> GltfHumanoid:
         raise FormatError("its hips are not above its lowest vertex", path=where)
     _place_missing(joints, src)
     sources = tuple(src[n] if isinstance(src.get(n), int) else None for n in JOINT_NAMES)  # type: ignore[misc]
-    body = Body(vertices=verts.astype(np.float32), faces=faces.astype(np.int32), rest_joints=joints.astype(np.float32),
-                weights=weights.astype(np.float32), parents=PARENTS.copy(), name=path.stem, phenotype=None)
     names = tuple(node.name or f"node{i}" for i, node in enumerate(doc.nodes))
+    body = Body(vertices=verts.astype(np.float32), faces=faces.astype(np.int32), rest_joints=joints.astype(np.float32),
+                weights=weights.astype(np.float32), parents=PARENTS.copy(), name=path.stem, phenotype=None,
+                joint_names=bvh_joint_names(sources, names))
     return GltfHumanoid(body=body, kind=kind, bones=bones, node_names=names, joint_sources=sources,
                         turned=left_sign < 0, to_ours=to_ours)
+
+
+def bvh_joint_names(sources: tuple[int | None, ...], node_names: tuple[str, ...]) -> tuple[str, ...]:
+    """Per canonical joint, the name of the file's node it is, usable as a BVH joint name
+    (whitespace becomes "_"); the canonical name for a joint placed between two bones, and for a
+    node name that is empty or already taken (BVH importers key joints by name)."""
+    out: list[str] = []
+    for canonical, node in zip(JOINT_NAMES, sources, strict=True):
+        name = "_".join(node_names[node].split()) if node is not None else ""
+        out.append(name if name and name not in out and name not in JOINT_NAMES else canonical)
+    return tuple(out)
 
 
 def load_gltf_avatar(path: str | Path) -> Body:

@@ -4,6 +4,7 @@ local rotations encoded into a skeleton's channels, and canonical 22-joint motio
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -100,17 +101,19 @@ _ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation
 _JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
 
 
-def canonical_skeleton(rest_joints: np.ndarray) -> BvhSkeleton:
+def canonical_skeleton(rest_joints: np.ndarray, names: Sequence[str] | None = None) -> BvhSkeleton:
     """The 22-joint canonical skeleton as a BVH hierarchy (offsets from ``rest_joints`` (22, 3)),
-    with end sites that continue the leaf bones (head, wrists, feet)."""
+    with end sites that continue the leaf bones (head, wrists, feet). names: the joints' names in
+    canonical order (an avatar's own bone names), default the canonical ones."""
     rest_joints = np.asarray(rest_joints, dtype=np.float64)
+    joint_names = JOINT_NAMES if names is None else _checked_names(names)
     offsets = rest_offsets(rest_joints)
     end_offsets = []
     for j in LEAVES:
         # Extend the leaf's incoming bone by half its length: a visible bone in viewers.
         end_offsets.append(0.5 * offsets[j])
     return BvhSkeleton(
-        names=JOINT_NAMES,
+        names=joint_names,
         parents=PARENTS.astype(np.int64),
         offsets=offsets,
         channels=tuple(_ROOT_CHANNELS if p < 0 else _JOINT_CHANNELS for p in PARENTS),
@@ -119,15 +122,26 @@ def canonical_skeleton(rest_joints: np.ndarray) -> BvhSkeleton:
     )
 
 
+def _checked_names(names: Sequence[str]) -> tuple[str, ...]:
+    out = tuple(str(n) for n in names)
+    if len(out) != len(JOINT_NAMES):
+        raise ValueError(f"{len(out)} joint names for the {len(JOINT_NAMES)} canonical joints")
+    if len(set(out)) != len(out) or any(not n or n != "".join(n.split()) for n in out):
+        raise ValueError(f"BVH joint names must be unique, non-empty and without whitespace: {out}")
+    return out
+
+
 def write_canonical_bvh(path: str | Path, rotations: np.ndarray, root: np.ndarray,
-                        rest_joints: np.ndarray, fps: float, *, precision: int = 6) -> None:
+                        rest_joints: np.ndarray, fps: float, *, precision: int = 6,
+                        names: Sequence[str] | None = None) -> None:
     """Write a canonical 22-joint motion (rotations (T, 22, 4) local, root (T, 3) world metres,
     rest_joints (22, 3) T-pose) as a metre-unit BVH whose FK equals
-    ``forward_kinematics(rotations, root, rest_joints)``."""
+    ``forward_kinematics(rotations, root, rest_joints)``. names: the joints' names in the file
+    (canonical order; default the canonical names): only the names change, not the motion."""
     rotations = np.asarray(rotations, dtype=np.float64)
     if rotations.ndim != 3 or rotations.shape[1:] != (len(JOINT_NAMES), 4):
         raise ValueError(f"rotations must be (T, 22, 4), got {rotations.shape}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    clip = clip_from_rotations(canonical_skeleton(rest_joints), frame_interval_s(fps), rotations, root)
+    clip = clip_from_rotations(canonical_skeleton(rest_joints, names), frame_interval_s(fps), rotations, root)
     write_bvh(path, clip, precision=precision)

@@ -147,7 +147,8 @@ def _write_skeleton(out: Path, t_ns: np.ndarray, joints: np.ndarray, confidence:
 
 
 def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.ndarray, joints: np.ndarray,
-                  avatar_rest_joints: np.ndarray | None, fps: float) -> list[Path]:
+                  avatar_rest_joints: np.ndarray | None, fps: float,
+                  joint_names: tuple[str, ...] | None = None) -> list[Path]:
     rest = (np.asarray(avatar_rest_joints, np.float32) if avatar_rest_joints is not None
             else np.zeros((22, 3), np.float32))
     p = out / "avatar.npz"
@@ -157,7 +158,7 @@ def _write_avatar(out: Path, t_ns: np.ndarray, rotations: np.ndarray, root: np.n
         from live.io.bvh_writer import write_canonical_bvh
 
         p = out / "avatar.bvh"
-        write_canonical_bvh(p, rotations, root, rest, fps)
+        write_canonical_bvh(p, rotations, root, rest, fps, names=joint_names)
         written.append(p)
     return written
 
@@ -202,15 +203,17 @@ def assemble_results(out_dir: str | Path) -> list[Path]:
                                        c2w))
     avatar = _chunks(partial, "avatar")
     if avatar:
-        rest, fps = None, float("nan")
+        rest, fps, names = None, float("nan"), None
         if (partial / _REST_FILE).is_file():
             with np.load(partial / _REST_FILE, allow_pickle=False) as z:
                 rest, fps = z["rest_joints"], float(z["fps"])
+                if "joint_names" in z.files:
+                    names = tuple(str(n) for n in z["joint_names"])
         t_ns = _joined(avatar, "t_ns")
         if not (np.isfinite(fps) and fps > 0):  # the source did not say: the frames' own rate
             fps = take_fps(t_ns)
         written += _write_avatar(out, t_ns, _joined(avatar, "rotations"), _joined(avatar, "root"),
-                                 _joined(avatar, "joints"), rest, fps)
+                                 _joined(avatar, "joints"), rest, fps, names)
     shutil.rmtree(partial)
     return written
 
@@ -219,14 +222,17 @@ class ResultsWriter:
     """A sink writing DIR/skeleton.npz, DIR/avatar.npz and DIR/avatar.bvh (see the module).
 
     fps: the take's frame rate (avatar.bvh's Frame Time is 1 / fps), e.g. the depth stream's; None:
-    from the avatar frames' timestamps (``take_fps``). flush_every_s: how often (wall clock,
+    from the avatar frames' timestamps (``take_fps``). avatar_joint_names: avatar.bvh's joint names
+    (the avatar file's own bones, canonical order); None: the canonical names. flush_every_s: how often (wall clock,
     ``clock``) the frames held go to a chunk file."""
 
     def __init__(self, out_dir: str | Path, *, avatar_rest_joints: np.ndarray | None = None,
-                 fps: float | None = None, flush_every_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
+                 fps: float | None = None, avatar_joint_names: tuple[str, ...] | None = None,
+                 flush_every_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
         self.out = Path(out_dir)
         self.avatar_rest_joints = avatar_rest_joints
         self.fps = fps
+        self.avatar_joint_names = avatar_joint_names
         self.flush_every_s = flush_every_s
         self._clock = clock
         self._last_flush: float | None = None
@@ -275,8 +281,11 @@ class ResultsWriter:
             shutil.rmtree(self.partial, ignore_errors=True)
             self.partial.mkdir(parents=True)
             if self.avatar_rest_joints is not None:
+                # The names go with the rest pose: a crashed run's recovered avatar.bvh keeps them.
+                names = {} if self.avatar_joint_names is None else {
+                    "joint_names": np.array(self.avatar_joint_names, dtype=np.str_)}
                 _save_atomically(self.partial / _REST_FILE, rest_joints=np.asarray(self.avatar_rest_joints, np.float32),
-                                 fps=np.float64(np.nan if self.fps is None else self.fps))
+                                 fps=np.float64(np.nan if self.fps is None else self.fps), **names)
         k = self._chunks_written
         if self.skel_t:
             _save_atomically(self.partial / f"skeleton-{k:06d}.npz", t_ns=np.asarray(self.skel_t, np.int64),
