@@ -364,3 +364,101 @@ def test_split_frames_rebuild_the_same_poses(marionette):
     for i, (pose, _ok) in enumerate(marionette.poses):
         np.testing.assert_allclose(pose.root, root[i], atol=1e-5)
         np.testing.assert_allclose(np.abs(np.sum(pose.rotations * quat_normalize(rot[i]), -1)), 1.0, atol=1e-5)
+
+
+def _received_bones(extra_bones, rest, frames=1, **kwargs):
+    """Send ``frames`` rest-pose frames to a plain loopback UDP socket; per frame, bone -> values."""
+    from pythonosc.osc_bundle import OscBundle
+
+    rot, root = np.tile([1.0, 0.0, 0.0, 0.0], (22, 1)), np.asarray(rest[0], np.float64)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+        rx.bind(("127.0.0.1", 0))
+        rx.settimeout(5.0)
+        with VmcSink("127.0.0.1", rx.getsockname()[1], rate_hz=None, avatar_rest_joints=rest,
+                     extra_bones=extra_bones, **kwargs) as sink:
+            for i in range(frames):
+                sink.send(_result(i, rot, root))
+        datagrams = [rx.recv(65536) for _ in range(sink.bundles)]
+    out, sizes = [], [len(d) for d in datagrams]
+    for d in datagrams:
+        for msg in OscBundle(d):
+            if msg.address == "/VMC/Ext/OK":
+                out.append({})
+            elif msg.address == "/VMC/Ext/Bone/Pos":
+                out[-1][msg.params[0]] = np.asarray(msg.params[1:], np.float64)
+    return out, sizes
+
+
+def test_extra_bones_go_at_rest_after_the_22():
+    from live.body.body import ExtraBone
+
+    rest = default_rest_joints()
+    extra = (ExtraBone("LeftIndexProximal", "left_wrist", (0.09, -0.003, 0.017)),
+             ExtraBone("LeftIndexIntermediate", "LeftIndexProximal", (0.025, 0.0, 0.0)),
+             ExtraBone("Jaw", "head", (0.0, -0.05, 0.04)))
+    frames, _ = _received_bones(extra, rest, frames=2)
+    for bones in frames:
+        assert list(bones) == [*UNITY_BONES, "LeftIndexProximal", "LeftIndexIntermediate", "Jaw"]
+        for e in extra:
+            np.testing.assert_allclose(bones[e.name][3:], [0, 0, 0, 1])
+            np.testing.assert_allclose(position_from_unity(bones[e.name][:3]), e.offset, atol=1e-7)
+        # The 22 still rebuild the pose sent (here the rest pose).
+        pose = pose_from_vmc(bones)
+        np.testing.assert_allclose(pose.rotations[:, 0], 1.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("bone", [("Tail", "pelvis"), ("LeftEye", "nose"), ("LeftIndexDistal", "LeftIndexProximal")])
+def test_extra_bones_must_be_humanoid_and_hang_from_a_bone_sent(bone):
+    from live.body.body import ExtraBone
+
+    with pytest.raises(UserInputError):
+        VmcSink(extra_bones=(ExtraBone(bone[0], bone[1], (0.0, 0.0, 0.0)),))
+
+
+def test_godette_fingers_over_vmc_rebuild_her_own_rest_bones():
+    """Godette's 24 finger bones arrive at rest after the 22; chained from her hands, the received
+    localPositions put every finger bone where her file has it (1 mm), also split to fit an MTU."""
+    from live.body.gltf_avatar import read_gltf_humanoid
+    from live.core.assets import shared_data_dir
+    from live.outputs.unity import UNITY_BONE_INDEX
+
+    path = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
+    if not path.is_file():
+        pytest.skip("../shared/data/avatars/godette_vrm0.vrm is absent")
+    h = read_gltf_humanoid(path)
+    body = h.body
+    assert len(body.extra_bones) == 24
+    for kwargs in ({}, {"max_bundle_bytes": 1400}):
+        (bones,), sizes = _received_bones(body.extra_bones, body.rest_joints, **kwargs)
+        assert len(bones) == 22 + 24 and max(sizes) <= kwargs.get("max_bundle_bytes", 65507)
+        parent = {e.name: JOINT_TO_UNITY_BONE.get(e.parent, e.parent) for e in body.extra_bones}
+        world = {}
+        for e in body.extra_bones:  # parents first
+            up = parent[e.name]
+            at = world[up] if up in world else body.rest_joints[UNITY_BONE_INDEX[up]].astype(np.float64)
+            np.testing.assert_allclose(bones[e.name][3:], [0, 0, 0, 1])
+            world[e.name] = at + position_from_unity(bones[e.name][:3])
+        # The file's own bone positions, in our frame (the file's scene -> ours: to_ours).
+        vrm = {b: n for b, n in h.bones.items()}
+        for e in body.extra_bones:
+            node = vrm[e.name[0].lower() + e.name[1:]]
+            want = h.to_ours[:3, :3] @ _node_world(path, node) + h.to_ours[:3, 3]
+            np.testing.assert_allclose(world[e.name], want, atol=1e-3, err_msg=e.name)
+
+
+def _node_world(path, node):
+    """A node's world rest position from the GLB's JSON, summed by hand (Godette's nodes carry
+    translations only)."""
+    import json
+    import struct
+
+    data = path.read_bytes()
+    (n,) = struct.unpack_from("<I", data, 12)
+    doc = json.loads(data[20:20 + n])
+    parent = {c: i for i, nd in enumerate(doc["nodes"]) for c in nd.get("children", [])}
+    p, k = np.zeros(3), node
+    while k is not None:
+        assert doc["nodes"][k].get("rotation", [0, 0, 0, 1]) == [0, 0, 0, 1]
+        p += doc["nodes"][k].get("translation", [0, 0, 0])
+        k = parent.get(k)
+    return p

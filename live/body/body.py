@@ -9,13 +9,27 @@ from dataclasses import dataclass
 import numpy as np
 
 
+@dataclass(frozen=True)
+class ExtraBone:
+    """A humanoid bone of an avatar file beyond the 22 joints (a finger, an eye, the jaw), kept at
+    rest: name in Unity's HumanBodyBones spelling (``LeftIndexProximal``; VRM's humanoid names are
+    the same in lowerCamelCase); parent: the canonical joint (``left_wrist``) or the extra bone
+    (``LeftIndexProximal``) it hangs from; offset: its rest position minus its parent's, metres,
+    in the body's frame."""
+
+    name: str
+    parent: str
+    offset: tuple[float, float, float]
+
+
 @dataclass(frozen=True, eq=False)
 class Body:
     """vertices (V,3) float32 T-pose mesh, y up, feet on y=0, facing +z; faces (F,3) int32;
     rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
     phenotype: the Anny parameters it was made from, or None; joint_names: the avatar file's own
-    name for each of the 22 joints (a VRM's humanoid bone nodes), or None (canonical names). Arrays of a loaded body are
-    read-only (load_body shares them between callers)."""
+    name for each of the 22 joints (a VRM's humanoid bone nodes), or None (canonical names);
+    extra_bones: the file's humanoid bones beyond the 22, parents first (VMC sends them at rest).
+    Arrays of a loaded body are read-only (load_body shares them between callers)."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -25,6 +39,7 @@ class Body:
     name: str
     phenotype: dict | None = None
     joint_names: tuple[str, ...] | None = None
+    extra_bones: tuple[ExtraBone, ...] = ()
 
     @property
     def height(self) -> float:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from live.body.body import Body
+from live.body.body import Body, ExtraBone
 from live.body.gltf_file import open_gltf, read_accessor, world_matrices
 from live.core.errors import FormatError, LivecapError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
@@ -48,6 +48,14 @@ VRM_BONE_TO_JOINT: dict[str, str] = {
     **{f"{side}{bone}": f"{side}_{joint}" for side in ("left", "right") for bone, joint in (
         ("Shoulder", "collar"), ("UpperArm", "shoulder"), ("LowerArm", "elbow"), ("Hand", "wrist"),
         ("UpperLeg", "hip"), ("LowerLeg", "knee"), ("Foot", "ankle"), ("Toes", "foot"))},
+}
+#: Humanoid bones beyond the 22 joints, kept at rest (VMC sends them): VRM 0.x name -> Unity
+#: HumanBodyBones name. VRM 1.0 names its thumb bones one step earlier (Metacarpal, Proximal, Distal
+#: for Unity's Proximal, Intermediate, Distal): see ``_extra_bone_names``.
+EXTRA_BONE_NAMES: dict[str, str] = {
+    "leftEye": "LeftEye", "rightEye": "RightEye", "jaw": "Jaw",
+    **{f"{side}{finger}{part}": f"{side.capitalize()}{finger}{part}" for side in ("left", "right")
+       for finger in ("Thumb", "Index", "Middle", "Ring", "Little") for part in ("Proximal", "Intermediate", "Distal")},
 }
 REQUIRED_BONES = ("hips", "spine", "head", "leftUpperArm", "leftLowerArm", "leftHand", "rightUpperArm",
                   "rightLowerArm", "rightHand", "leftUpperLeg", "leftLowerLeg", "leftFoot", "rightUpperLeg",
@@ -263,6 +271,50 @@ def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
 # ----------------------------------------------------------------------------- the avatar
 
 
+def _extra_bone_names(kind: str, bones: dict[str, int]) -> dict[int, str]:
+    """Node -> Unity HumanBodyBones name, for the humanoid bones beyond the 22 joints. A VRM 1.0 side
+    with a ``ThumbMetacarpal`` uses 1.0's thumb names; one without uses 0.x's (as some converters write)."""
+    out: dict[int, str] = {}
+    for bone, node in bones.items():
+        name = bone
+        if kind == "vrm1" and "Thumb" in bone and f"{bone.partition('Thumb')[0]}ThumbMetacarpal" in bones:
+            side, _, part = bone.partition("Thumb")
+            name = {"Metacarpal": f"{side}ThumbProximal", "Proximal": f"{side}ThumbIntermediate"}.get(
+                part, f"{side}Thumb{part}" if part == "Distal" else "")
+        if name in EXTRA_BONE_NAMES:
+            out[node] = EXTRA_BONE_NAMES[name]
+    return out
+
+
+def _extra_bones(kind: str, bones: dict[str, int], world: np.ndarray, parents: np.ndarray,
+                 to_ours: np.ndarray, joints: np.ndarray, owners: dict[int, int]) -> tuple[ExtraBone, ...]:
+    """The file's humanoid bones beyond the 22 joints at rest, in our frame, each hung from its
+    nearest ancestor that is a humanoid bone we send (a canonical joint or another extra bone),
+    parents first. A bone with no such ancestor is left out."""
+    named = {n: u for n, u in _extra_bone_names(kind, bones).items() if n not in owners}
+
+    def position(n: int) -> np.ndarray:
+        return to_ours[:3, :3] @ world[n, :3, 3] + to_ours[:3, 3]
+
+    def depth(n: int) -> int:
+        d = 0
+        while parents[n] >= 0:
+            n, d = int(parents[n]), d + 1
+        return d
+
+    out = []
+    for n in sorted(named, key=lambda n: (depth(n), n)):
+        k = int(parents[n])
+        while k >= 0 and k not in named and k not in owners:
+            k = int(parents[k])
+        if k < 0:
+            continue
+        parent, at = (named[k], position(k)) if k in named else (JOINT_NAMES[owners[k]], joints[owners[k]])
+        offset = position(n) - at
+        out.append(ExtraBone(name=named[n], parent=parent, offset=(float(offset[0]), float(offset[1]), float(offset[2]))))
+    return tuple(out)
+
+
 def _point(world: np.ndarray, spec: int | tuple[int, int, float]) -> np.ndarray:
     if isinstance(spec, int):
         return world[spec, :3, 3]
@@ -394,7 +446,8 @@ def _read(path: Path, where: str) -> GltfHumanoid:
     names = tuple(node.name or f"node{i}" for i, node in enumerate(doc.nodes))
     body = Body(vertices=verts.astype(np.float32), faces=faces.astype(np.int32), rest_joints=joints.astype(np.float32),
                 weights=weights.astype(np.float32), parents=PARENTS.copy(), name=path.stem, phenotype=None,
-                joint_names=bvh_joint_names(sources, names))
+                joint_names=bvh_joint_names(sources, names),
+                extra_bones=_extra_bones(kind, bones, world, parents, to_ours, joints, owners))
     return GltfHumanoid(body=body, kind=kind, bones=bones, node_names=names, joint_sources=sources,
                         turned=left_sign < 0, to_ours=to_ours)
 

@@ -64,6 +64,13 @@ UNITY_BONE_INDEX: dict[str, int] = {b: JOINT_INDEX[n] for n, b in JOINT_TO_UNITY
 
 assert len(UNITY_BONES) == NUM_JOINTS and len(set(UNITY_BONES)) == NUM_JOINTS
 
+#: The HumanBodyBones an avatar file may map beyond the 22 joints: eyes, jaw, fingers. They are
+#: sent at rest (identity localRotation): their localPosition is the file's own rest offset.
+UNITY_EXTRA_BONES: frozenset[str] = frozenset(
+    ["LeftEye", "RightEye", "Jaw"]
+    + [f"{side}{finger}{part}" for side in ("Left", "Right") for finger in ("Thumb", "Index", "Middle", "Ring", "Little")
+       for part in ("Proximal", "Intermediate", "Distal")])
+
 _MIRROR_X = np.array([-1.0, 1.0, 1.0])
 _MIRROR_Q = np.array([1.0, 1.0, -1.0, -1.0])
 

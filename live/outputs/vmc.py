@@ -7,6 +7,12 @@ VMC (https://protocol.vmc.info) is OSC over UDP. Every frame becomes one OSC bun
     /VMC/Ext/T         f time in seconds (since this sink's first frame)
     /VMC/Ext/Root/Pos  s "root", f px, py, pz, f qx, qy, qz, qw
     /VMC/Ext/Bone/Pos  s bone,   f px, py, pz, f qx, qy, qz, qw      (x 22, canonical order)
+    /VMC/Ext/Bone/Pos  s bone,   f px, py, pz, f 0, 0, 0, 1          (each extra bone, at rest)
+
+Extra bones: the humanoid bones a VRM / glTF avatar maps beyond the 22 (fingers, eyes, jaw; the
+Body's ``extra_bones``) are sent at rest, identity localRotation and the file's own rest offset
+as localPosition, so a receiver that applies every bone it is sent gets a complete, consistent
+pose (Godette's 24 finger bones make a frame 3,884 bytes instead of 1,844: ``--vmc-mtu`` splits it).
 
 With ``max_bundle_bytes`` (``--vmc-mtu``) a frame's messages are split, in order, over as many
 bundles as keep each datagram within that size (a 22-bone frame is ~1,850 bytes: over Ethernet's
@@ -37,13 +43,16 @@ import numpy as np
 from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
+from live.body.body import ExtraBone
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
 from live.core.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
 from live.core.skeleton import NUM_JOINTS, default_rest_joints, rest_offsets
 from live.outputs.unity import (
+    JOINT_TO_UNITY_BONE,
     UNITY_BONE_INDEX,
     UNITY_BONES,
+    UNITY_EXTRA_BONES,
     position_from_unity,
     position_to_unity,
     quat_from_unity,
@@ -83,10 +92,12 @@ def vmc_messages(
     rest_joints: np.ndarray,
     t_s: float,
     tracking_ok: bool = True,
+    extra_bones: Sequence[ExtraBone] = (),
 ) -> list[tuple[str, list]]:
     """One frame as (address, args) pairs, in bundle order (see the module docstring).
 
-    root (3,) pelvis world position; rotations (22, 4) local (w, x, y, z); rest_joints (22, 3).
+    root (3,) pelvis world position; rotations (22, 4) local (w, x, y, z); rest_joints (22, 3);
+    extra_bones: sent at rest after the 22 (``extra_bone_messages``).
     """
     rotations = quat_normalize(np.asarray(rotations, dtype=np.float64))
     if rotations.shape != (NUM_JOINTS, 4):
@@ -102,6 +113,25 @@ def vmc_messages(
     ]
     for j, bone in enumerate(UNITY_BONES):
         msgs.append((ADDR_BONE, [bone, *map(float, pos_u[j]), *map(float, rot_u[j])]))
+    return msgs + extra_bone_messages(extra_bones)
+
+
+def extra_bone_messages(extra_bones: Sequence[ExtraBone]) -> list[tuple[str, list]]:
+    """Bone messages for an avatar's bones beyond the 22, at rest: identity localRotation, the rest
+    offset from the parent as localPosition (Unity's frame). Each bone must be a HumanBodyBones
+    name of UNITY_EXTRA_BONES, once, and hang from a canonical joint or an extra bone listed before it."""
+    msgs: list[tuple[str, list]] = []
+    seen: set[str] = set()
+    for bone in extra_bones:
+        if bone.name not in UNITY_EXTRA_BONES or bone.name in seen:
+            raise UserInputError(f"VMC extra bone {bone.name!r} is not a HumanBodyBones finger, eye or jaw bone, "
+                                 "or is given twice")
+        if bone.parent not in JOINT_TO_UNITY_BONE and bone.parent not in seen:
+            raise UserInputError(f"VMC extra bone {bone.name!r} hangs from {bone.parent!r}, neither a joint nor an "
+                                 "extra bone before it")
+        seen.add(bone.name)
+        pos_u = position_to_unity(np.asarray(bone.offset, dtype=np.float64))
+        msgs.append((ADDR_BONE, [bone.name, *map(float, pos_u), 0.0, 0.0, 0.0, 1.0]))
     return msgs
 
 
@@ -197,6 +227,7 @@ class VmcSink:
         min_confidence: float = 0.3,
         clock: Callable[[], float] = time.monotonic,
         max_bundle_bytes: int | None = None,
+        extra_bones: Sequence[ExtraBone] = (),
     ) -> None:
         if not host:
             raise UserInputError("VMC needs a host name or address to send to")
@@ -224,6 +255,8 @@ class VmcSink:
             raise UserInputError(f"cannot send VMC to {host}:{port}: {e}") from e
         self.host, self.port = host, int(port)
         self._rest = rest.astype(np.float64)
+        self._extra = tuple(extra_bones)
+        extra_bone_messages(self._extra)  # a bad bone is refused here, not on every frame
         self._period = None if rate_hz is None else 1.0 / float(rate_hz)
         self._min_conf = float(min_confidence)
         self._clock = clock
@@ -308,7 +341,7 @@ class VmcSink:
         if result.skeleton is not None:
             tracking_ok = float(np.mean(result.skeleton.confidence)) >= self._min_conf
         avatar = result.avatar
-        msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok)
+        msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok, self._extra)
         for datagram in encode_bundles(msgs, self.max_bundle_bytes):
             try:
                 self._sock.send(datagram)
