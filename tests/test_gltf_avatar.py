@@ -108,6 +108,35 @@ def test_vrm1_conversion_gives_the_same_body(tmp_path):
     np.testing.assert_allclose(b.body.rest_joints, a.body.rest_joints, atol=1e-3)
     np.testing.assert_allclose(b.body.vertices, a.body.vertices, atol=1e-3)
     np.testing.assert_allclose(b.body.weights, a.body.weights, atol=1e-5)
+    assert b.body.joint_names == a.body.joint_names
+
+
+def _extra(body) -> dict:
+    return {e.name: (e.parent, np.asarray(e.offset)) for e in body.extra_bones}
+
+
+@needs_godette
+def test_vrm1_thumb_names_give_the_same_extra_bones(tmp_path):
+    """VRM 1.0 names the thumb one step earlier (Metacarpal, Proximal, Distal): renamed so, the
+    file gives the same HumanBodyBones thumbs, parents and offsets as VRM 0.x's names."""
+    from research.vrm1_from_vrm0 import convert
+
+    out = tmp_path / "godette_vrm1.vrm"
+    convert(GODETTE, out)
+    doc, blob = _glb_chunks(out)
+    bones = doc["extensions"]["VRMC_vrm"]["humanoid"]["humanBones"]
+    for side in ("left", "right"):
+        prox, inter = bones.pop(f"{side}ThumbProximal"), bones.pop(f"{side}ThumbIntermediate")
+        bones[f"{side}ThumbMetacarpal"], bones[f"{side}ThumbProximal"] = prox, inter
+    renamed = _write_glb(tmp_path / "thumbs_vrm1.vrm", doc, blob)
+    want = _extra(read_gltf_humanoid(GODETTE).body)
+    assert len(want) == 24 and want["LeftThumbIntermediate"][0] == "LeftThumbProximal"
+    for path in (out, renamed):
+        got = _extra(read_gltf_humanoid(path).body)
+        assert got.keys() == want.keys()
+        for name, (parent, offset) in want.items():
+            assert got[name][0] == parent
+            np.testing.assert_allclose(got[name][1], offset, atol=1e-5, err_msg=name)
 
 
 @needs_godette
