@@ -76,7 +76,7 @@ def main() -> int:
                 times[f"{label}/rev"] += time_finder(before, frames_of)
                 times[f"{label}/now"] += time_finder(PersonFinder, frames_of)
     print(f"person finder, {args.frames} OAK-D frames x {args.rounds} rounds, alternating; ms per frame")
-    print(f"{'':10s} {args.rev + ' p50':>14s} {'p95':>7s} {'now p50':>9s} {'p95':>7s} {"ratio p50":>10s} {'p95':>6s}")
+    print(f"{'':10s} {args.rev + ' p50':>14s} {'p95':>7s} {'now p50':>9s} {'p95':>7s} {'ratio p50':>10s} {'p95':>6s}")
     for label in ("given", "hidden"):
         r50, r95 = percentiles(times[f"{label}/rev"], (50, 95)).values()
         n50, n95 = percentiles(times[f"{label}/now"], (50, 95)).values()
