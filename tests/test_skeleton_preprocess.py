@@ -263,3 +263,16 @@ def test_r2_order_spreads_any_prefix_evenly_and_is_distinct():
     for _ in range(1000):
         hits[r2_grid_order(rows, cols, 120, rng.random(2))] += 1
     assert hits.min() > 0 and hits.std() / hits.mean() < 0.25
+
+
+def test_ransac_plane_is_deterministic_and_fits_a_noisy_floor():
+    from models.skeleton.ground import ransac_plane
+
+    rng = np.random.default_rng(3)
+    floor = np.c_[rng.uniform(-2, 2, 3000), 1.4 + rng.normal(0, 0.01, 3000), rng.uniform(1, 5, 3000)]
+    clutter = rng.uniform([-2, -0.5, 1], [2, 1.3, 5], (1500, 3))
+    pts = np.vstack([floor, clutter])
+    runs = [ransac_plane(pts, 0.02, 200, np.random.default_rng(0)) for _ in range(2)]
+    (n, d, inliers), (n2, d2, inliers2) = runs
+    assert np.array_equal(n, n2) and d == d2 and np.array_equal(inliers, inliers2)
+    assert abs(abs(n[1]) - 1.0) < 1e-3 and abs(abs(d) - 1.4) < 0.005  # the plane y = 1.4 (camera axes)

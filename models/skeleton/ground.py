@@ -64,14 +64,12 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
                max_planes: int = 4, seed: int = 0) -> tuple[np.ndarray, float] | None:
     """The floor of a camera-frame cloud (M, 3): (up, the camera's height above it), or None.
 
-    Planes are found by RANSAC (open3d), up to ``max_planes`` of them, each on what the previous
-    ones left. A plane is a floor candidate when its normal is within ``max_tilt_deg`` of
+    Planes are found by RANSAC (``ransac_plane``), up to ``max_planes`` of them, each on what the
+    previous ones left. A plane is a floor candidate when its normal is within ``max_tilt_deg`` of
     ``up_prior``, it holds ``min_points`` points or more, and no more than ``below_share`` of the
     cloud lies more than 10 cm below it (a table top or a seat has the floor and legs below it;
     the floor has nothing). The lowest candidate wins. Any part of the image may hold it: a
     patch in the bottom rows, the floor behind the performer."""
-    import open3d as o3d
-
     pts = np.asarray(points_cam, np.float64)
     if len(pts) < min_points:
         return None
@@ -80,18 +78,12 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
     cand = pts[rng.choice(len(pts), 20000, replace=False)] if len(pts) > 20000 else pts
     # Points far above the camera are never floor (the camera is at least a few cm above it).
     cand = cand[cand @ prior < 0.0]
-    o3d.utility.random.seed(seed)
     best: tuple[np.ndarray, float] | None = None
     min_support = max(min_points, int(0.02 * len(cand)))
     for _ in range(max_planes):
         if len(cand) < min_support:
             break
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cand))
-        plane, inliers = cloud.segment_plane(distance_m, 3, 200)
-        n = np.asarray(plane[:3], np.float64)
-        d = float(plane[3])
-        norm = float(np.linalg.norm(n))
-        n, d = n / norm, d / norm
+        n, d, inliers = ransac_plane(cand, distance_m, 200, rng)
         if n @ prior < 0:
             n, d = -n, -d
         if len(inliers) >= min_support and tilt_deg(n, prior) <= max_tilt_deg and d > 0.05:
@@ -102,6 +94,37 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
         keep[np.asarray(inliers, np.int64)] = False
         cand = cand[keep]
     return best
+
+
+def ransac_plane(points: np.ndarray, distance_m: float, iterations: int, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, float, np.ndarray]:
+    """The plane n . p + d = 0 (unit n) with the most points (M, 3) within ``distance_m``, refined by
+    a least-squares fit to those inliers, and their indices. Deterministic for a given ``rng``
+    (open3d's multi-threaded segment_plane is not, and replays must give the same bytes)."""
+    m = len(points)
+    picks = rng.integers(0, m, size=(iterations, 3))
+    a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-9
+    normals, a = normals[ok] / norms[ok, None], a[ok]
+    if not len(normals):
+        return np.array([0.0, -1.0, 0.0]), 0.0, np.zeros(0, np.int64)
+    offsets = -np.einsum("ij,ij->i", normals, a)
+    # Count inliers on a fixed subsample (the counts only rank the hypotheses).
+    probe = points if m <= 4000 else points[rng.choice(m, 4000, replace=False)]
+    counts = (np.abs(probe @ normals.T + offsets) <= distance_m).sum(axis=0)
+    best = int(np.argmax(counts))
+    n, d = normals[best], float(offsets[best])
+    inliers = np.flatnonzero(np.abs(points @ n + d) <= distance_m)
+    if len(inliers) >= 3:  # least squares through the inliers: the noise averages out
+        sel = points[inliers]
+        centre = sel.mean(axis=0)
+        _, _, vt = np.linalg.svd(sel - centre, full_matrices=False)
+        refit = vt[2] if vt[2] @ n >= 0 else -vt[2]
+        n, d = refit, float(-refit @ centre)
+        inliers = np.flatnonzero(np.abs(points @ n + d) <= distance_m)
+    return n, d, inliers
 
 
 def body_up(points_world: np.ndarray, up: np.ndarray, max_tilt_deg: float = 25.0,
