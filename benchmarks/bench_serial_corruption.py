@@ -29,7 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.text_lines import LineParser, encode_line  # noqa: E402
-from drivers.xbus import MID_MTDATA2, XbusParser, encode_message, encode_mtdata2  # noqa: E402
+from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2  # noqa: E402
+from drivers.xbus_stream import XbusParser  # noqa: E402
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize  # noqa: E402
 
 SENSORS = 15

@@ -24,7 +24,7 @@ import serial
 
 from drivers.source_url import MAX_BAUD
 from drivers.text_lines import LineParser
-from drivers.xbus import XbusConfigurator, XbusParser
+from drivers.xbus_stream import XbusConfigurator, XbusParser
 from live.core.errors import DeviceError, DeviceNotFoundError, UserInputError
 from live.core.frames import MocapPacket
 from live.core.protocols import StreamInfo

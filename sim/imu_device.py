@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import xbus
+from drivers import xbus, xbus_stream
 from drivers.text_lines import encode_line
 from live.imu.layout import load_suit_layout
 from sim.imu_model import ImuNoise, ImuTrack, random_mounting, simulate_imus
@@ -183,7 +183,7 @@ class SimulatedSuit:
     # ------------------------------------------------------------------ streaming thread
     def _serve(self) -> None:
         master = self._fds[0]
-        parser = xbus.XbusParser()
+        parser = xbus_stream.XbusParser()
         out = bytearray()
         next_due = time.monotonic()
         while not self._stop.is_set():

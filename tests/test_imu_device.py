@@ -12,7 +12,7 @@ import pytest
 import serial
 
 from drivers.serial_source import SerialSource, decode_packet_bytes
-from drivers.xbus import XbusConfigurator, XbusParser
+from drivers.xbus_stream import XbusConfigurator, XbusParser
 from live.core.errors import DeviceError, FormatError
 from live.core.kinematics import global_rotations
 from live.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_rotate

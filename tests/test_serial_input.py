@@ -11,7 +11,8 @@ import pytest
 
 from drivers.serial_source import records_to_arrays
 from drivers.text_lines import LineParser, encode_line
-from drivers.xbus import MID_MTDATA2, XbusParser, encode_message, encode_mtdata2
+from drivers.xbus import MID_MTDATA2, encode_message, encode_mtdata2
+from drivers.xbus_stream import XbusParser
 from live.app.cli import main
 from live.core.frames import MocapPacket
 from live.core.rotations import quat_canonical, quat_from_axis_angle, quat_multiply

@@ -13,12 +13,11 @@ from drivers import xbus
 from drivers.xbus import (
     BID_MASTER,
     MID_MTDATA2,
-    XbusConfigurator,
-    XbusParser,
     decode_mtdata2,
     encode_message,
     encode_mtdata2,
 )
+from drivers.xbus_stream import XbusConfigurator, XbusParser
 from live.core.errors import DeviceError, FormatError
 from live.core.rotations import quat_from_axis_angle, quat_normalize, quat_rotate
 

@@ -23,7 +23,7 @@ from live.io.session import BODY_ATTACHMENT, SessionReader
 
 if TYPE_CHECKING:  # annotations only: the drivers load when a serial stream needs decoding
     from drivers.text_lines import LineParser
-    from drivers.xbus import XbusParser
+    from drivers.xbus_stream import XbusParser
 
 BODY_ARRAYS = ("vertices", "faces", "rest_joints", "weights")
 #: Streams one export writes (each holds a few spool files open); a session naming more is hostile.
