@@ -326,8 +326,9 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
 
 
 def build_bodies(specs: list[str], progress: bool) -> None:
-    """Build the on-demand bodies once here, before the pool forks: the workers inherit them
-    (building Anny's model costs a minute per process, a phenotype then ~0.2 s)."""
+    """Load the ``anny:`` bodies once here, before the pool forks, so the workers inherit them.
+    They come from the body cache: the training commands build them there first
+    (models.train.anny_bodies.ensure_built); a body not built is a one-line error."""
     it = specs
     if progress:
         from tqdm import tqdm

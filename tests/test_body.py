@@ -208,10 +208,24 @@ def test_anny_spec_parsing():
             load_body(bad)  # fails on the spec itself, with or without the train extra
 
 
-def test_anny_spec_without_the_train_extra(monkeypatch):
-    monkeypatch.setitem(__import__("sys").modules, "anny", None)  # makes `import anny` fail
-    with pytest.raises(UserInputError, match="train extra"):
+def test_an_anny_body_not_built_says_how_to_build_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("LIVECAP_CACHE", str(tmp_path))
+    with pytest.raises(UserInputError, match="livecap train bodies --anny 'anny:gender=0.123,"):
         load_body("anny:gender=0.123")
+
+
+def test_a_built_anny_body_loads_from_the_cache_without_torch(tmp_path, monkeypatch):
+    from live.body.library import anny_body_path, format_anny_spec, save_body
+
+    monkeypatch.setenv("LIVECAP_CACHE", str(tmp_path))
+    performer = load_body("performer")
+    spec = format_anny_spec(performer.phenotype)
+    path = anny_body_path("anny:" + ",".join(f"{k}={v}" for k, v in performer.phenotype.items()))
+    assert path.parent == tmp_path / "anny_bodies"  # any spelling of the phenotype, one file
+    path.parent.mkdir()
+    save_body(path, performer)
+    loaded = load_body(spec + " ")  # another spelling: not this process's cached object
+    np.testing.assert_array_equal(loaded.vertices, performer.vertices)
 
 
 def _anny_ready() -> bool:
@@ -223,8 +237,13 @@ def _anny_ready() -> bool:
 
 @pytest.mark.skipif(not _anny_ready(), reason="needs the train extra and Anny's cache (run models.train.export_bodies)")
 def test_anny_spec_builds_the_same_body_as_its_preset():
+    from live.body.library import anny_body_path
+    from models.train.anny_bodies import ensure_built
+
     performer = load_body("performer")
     spec = "anny:" + ",".join(f"{k}={v}" for k, v in performer.phenotype.items())
+    anny_body_path(spec).unlink(missing_ok=True)
+    assert ensure_built([spec]) == [spec] and ensure_built([spec]) == []  # built once, then cached
     built = load_body(spec)
     assert built.name.startswith("anny:") and built.phenotype == performer.phenotype
     for key in ("vertices", "faces", "rest_joints", "weights"):
@@ -241,7 +260,7 @@ def test_library_json_is_the_phenotype_table():
 def test_exporter_builds_the_bodies_library_json_lists(tmp_path, monkeypatch):
     # The Anny build itself needs the train extra; here each preset stands in for its own build,
     # so the command's reading and writing of the library is checked byte for byte.
-    import live.body.anny
+    import models.train.anny_bodies
     from models.train.export_bodies import main
 
     built = []
@@ -251,7 +270,7 @@ def test_exporter_builds_the_bodies_library_json_lists(tmp_path, monkeypatch):
         assert load_body(name).phenotype == phenotype
         return load_body(name)
 
-    monkeypatch.setattr(live.body.anny, "build_body", build_body)
+    monkeypatch.setattr(models.train.anny_bodies, "build_body", build_body)
     assert main(["--out", str(tmp_path)]) == 0
     assert built == list(preset_phenotypes())
     for path in sorted(BODIES_DIR.glob("*.npz")) + [BODIES_DIR / "library.json"]:

@@ -118,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run the live pipeline on one or more sources (latest-frame mode: bounded latency).")
     p.add_argument("--source", action="append", required=True, help="source string (repeatable), see `record`")
     p.add_argument("--out", type=Path, default=Path("run_out"), help="folder for stats.json and results")
-    p.add_argument("--record", type=Path, default=None, help="also record the sources into this session file")
+    p.add_argument("--record", type=Path, default=None, help="also record the sources into this MCAP file")
     p.add_argument("--seconds", type=arg.positive_seconds, default=None,
                    help="stop after this many seconds (default: Ctrl-C)")
     _add_output_options(p)

@@ -111,7 +111,7 @@ def run_pipeline(sources, stages, sinks, *, mode: str, record: Path | None = Non
                  seconds: float | None = None) -> dict:
     """Run a pipeline until the sources end, ``seconds`` pass, or Ctrl-C / SIGTERM.
 
-    ``record``: also record the sources into this session, closing a chunk every
+    ``record``: also record the sources into this MCAP file, closing a chunk every
     FLUSH_INTERVAL_S (a killed run loses at most that) with gap and status records;
     ``stats["recording"]`` then says what the recording went through (live.io.recording)."""
     recorder = None

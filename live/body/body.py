@@ -1,6 +1,6 @@
 """The Body: a rigged, skinned human mesh in the canonical T-pose (the body-file contract of
 CONVENTIONS.md in memory). Loaded and saved by live.body.library, built from an Anny phenotype by
-live.body.anny."""
+models.train.anny_bodies."""
 
 from __future__ import annotations
 

@@ -2,14 +2,16 @@
 
 A body spec is a preset name (``list_presets()`` and the aliases ``performer`` / ``default``;
 files in models/bodies, made by ``python -m models.train.export_bodies``), a path to a body file
-(.npz, contract in CONVENTIONS.md), or ``anny:gender=0.3,age=0.6,...`` built on demand with the
-``train`` extra (live.body.anny). models/bodies/library.json is the one table of the presets'
+(.npz, contract in CONVENTIONS.md), or ``anny:gender=0.3,age=0.6,...``: a body built once with the
+``train`` extra (``livecap train bodies --anny SPEC``, models.train.anny_bodies) into the body
+cache, and read from there. models/bodies/library.json is the one table of the presets'
 phenotypes and the aliases: the exporter builds the bodies it lists.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import io
 import json
 import zipfile
@@ -18,14 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
-from live.body.anny import ANNY_KEYS
-from live.body.anny import build_body as build_anny_body
 from live.body.body import Body
 from live.core import assets
 from live.core.errors import FormatError, UserInputError
 from live.core.skeleton import NUM_JOINTS, PARENTS
 
 BODIES_DIR = assets.bodies_dir()
+
+#: Anny's phenotype parameters, each in [0, 1] (gender 0 = male, 1 = female; age 0.75 = young
+#: adult, 1 = old; the others 0.5 = average); a missing one takes 0.5.
+ANNY_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 
 #: Array names of a body file, in the order save_body writes them.
 _FIELDS = ("vertices", "faces", "rest_joints", "weights", "parents", "name", "phenotype")
@@ -81,6 +85,13 @@ def format_anny_spec(phenotype: dict[str, float]) -> str:
     """{key: value} -> the canonical ``anny:gender=..,age=..,...`` spec (ANNY_KEYS order; the
     inverse of ``parse_anny_spec``), which also names the body."""
     return "anny:" + ",".join(f"{k}={phenotype[k]:g}" for k in ANNY_KEYS)
+
+
+def anny_body_path(spec: str) -> Path:
+    """Where the built body of an ``anny:`` spec is kept (the body cache; models.train.anny_bodies
+    builds it, ``livecap train bodies --anny SPEC``): one file per canonical phenotype."""
+    canonical = format_anny_spec(parse_anny_spec(spec))
+    return assets.cache_dir("anny_bodies") / f"{hashlib.sha1(canonical.encode()).hexdigest()[:16]}.npz"
 
 
 def save_body(path: str | Path, body: Body) -> None:
@@ -238,8 +249,12 @@ def body_from_npz_bytes(data: bytes, source: str = "body.npz") -> Body:
 @functools.lru_cache(maxsize=32)
 def _load_cached(spec: str) -> Body:
     if spec.startswith("anny:"):
-        phenotype = parse_anny_spec(spec)  # a bad spec fails the same way with or without the train extra
-        return build_anny_body(phenotype, format_anny_spec(phenotype))
+        path = anny_body_path(spec)  # a bad spec fails here, built or not
+        if not path.is_file():
+            canonical = format_anny_spec(parse_anny_spec(spec))
+            raise UserInputError(f"the body {canonical} is not built yet: `livecap train bodies --anny '{canonical}'` "
+                                 "builds it once (train extra: pip install 'livecap[train]')")
+        return body_from_arrays(_npz_arrays(path, str(path)), source=str(path))
     name = aliases().get(spec, spec)
     preset = BODIES_DIR / f"{name}.npz"
     if "/" not in spec and not spec.endswith(".npz") and preset.is_file():

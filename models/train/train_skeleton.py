@@ -236,6 +236,11 @@ def main(argv: list[str] | None = None) -> dict:
     progress = not args.no_progress
     t0 = time.monotonic()
     anny = args.anny if args.anny is not None else (0 if args.quick else 64)
+    if anny and args.anny_share > 0:  # the training split's phenotypes, built once into the body cache
+        from models.train.anny_bodies import ensure_built
+        from sim.skeleton_data import anny_phenotypes
+
+        ensure_built(anny_phenotypes(anny, args.seed), progress)
     data = {split: generate(split, n, seed=args.seed + k, workers=args.workers, progress=progress,
                             cache=not args.no_cache, anny=anny, anny_share=args.anny_share)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),

@@ -369,6 +369,10 @@ def main(argv: list[str] | None = None) -> dict:
     data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress),
             "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress)}
     if n_anny:  # presets-only sequences, then Anny-mixed ones: the first set's cache stays valid
+        from models.train.anny_bodies import ensure_built
+        from sim.skeleton_data import anny_phenotypes
+
+        ensure_built(anny_phenotypes(args.anny, args.seed + 2), progress)  # into the body cache, once
         more = generate_sequences("train", n_anny, seed=args.seed + 2, workers=args.workers, progress=progress,
                                   anny=args.anny, anny_share=args.anny_share)
         data["train"] = {k: np.concatenate([data["train"][k], more[k]]) for k in data["train"]}

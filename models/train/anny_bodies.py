@@ -1,4 +1,4 @@
-"""Bodies built from an Anny phenotype (needs the ``train`` extra: torch and anny).
+"""Bodies built from an Anny phenotype (training code: needs the ``train`` extra, torch and anny).
 
 Build the Anny body (rig ``cmu_mb``, topology ``notoes``), pose it from Anny's A-pose into the
 canonical T-pose with its own bones (legs straight down, arms and forearms along +-x, everything
@@ -6,8 +6,12 @@ else as Anny rests it), convert Anny's frame (z up, facing -y) to ours (y up, fa
 y = 0), decimate to about 7k vertices with open3d's quadric decimation (weights: inverse-distance
 blend of the 4 nearest full-resolution vertices) and fold Anny's 31 bone weights onto the 22
 canonical joints. Deterministic: the same anny and open3d versions give the same body byte for
-byte, so ``anny:<a preset's phenotype>`` is that preset. torch and anny are imported only when a
-body is built, so this module loads with numpy alone.
+byte, so ``anny:<a preset's phenotype>`` is that preset.
+
+The runtime never builds: ``ensure_built`` writes each ``anny:`` body once into the body cache
+(``live.body.library.anny_body_path``), where ``load_body`` reads it with numpy alone
+(``livecap train bodies --anny SPEC``; the training commands build their phenotypes first).
+torch and anny are imported only when a body is built.
 """
 
 from __future__ import annotations
@@ -15,13 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from live.body.body import Body
+from live.body.library import ANNY_KEYS, anny_body_path, format_anny_spec, parse_anny_spec, save_body
 from live.core import assets
 from live.core.errors import UserInputError
 from live.core.skeleton import JOINT_INDEX, PARENTS
-
-#: Anny's phenotype parameters, each in [0, 1] (gender 0 = male, 1 = female; age 0.75 = young
-#: adult, 1 = old; the others 0.5 = average); a missing one takes 0.5.
-ANNY_KEYS = ("gender", "age", "muscle", "weight", "height", "proportions")
 
 #: Anny frame -> ours: x stays (subject's left), z up -> y up, -y forward -> +z forward.
 ANNY_TO_WORLD = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -162,3 +163,19 @@ def build_body(phenotype: dict[str, float], name: str, target_vertices: int = TA
                 weights=w_small.astype(np.float32), parents=PARENTS.copy(), name=name,
                 phenotype={k: float(phenotype[k]) for k in ANNY_KEYS})
 
+
+def ensure_built(specs: list[str], progress: bool = False) -> list[str]:
+    """Build every ``anny:`` spec not yet in the body cache and save it there; returns the specs
+    built (the others were cached)."""
+    todo = [s for s in dict.fromkeys(specs) if not anny_body_path(s).is_file()]
+    it = todo
+    if progress and todo:
+        from tqdm import tqdm
+
+        it = tqdm(todo, desc="anny bodies", unit="body")
+    for spec in it:
+        phenotype = parse_anny_spec(spec)
+        path = anny_body_path(spec)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_body(path, build_body(phenotype, format_anny_spec(phenotype)))
+    return todo
