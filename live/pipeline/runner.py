@@ -121,10 +121,15 @@ class Pipeline:
 
         return emit
 
-    def _source_main(self, run: _SourceRun, stop: threading.Event) -> None:
+    def _source_main(self, run: _SourceRun, stop: threading.Event, emit: Callable[[object], None] | None = None,
+                     own_failures: Sequence[BaseException] = ()) -> None:
+        """Run a source to its end (in its thread, or inline with ``emit`` handling each frame);
+        its failure is recorded, not raised, but for ``own_failures`` (the consumer's, raised on)."""
         try:
-            run.source.run(self._emit_for(run, stop), stop)
+            run.source.run(emit or self._emit_for(run, stop), stop)
         except Exception as exc:  # noqa: BLE001 - a dead source must not take the pipeline down
+            if own_failures and exc is own_failures[0]:
+                raise
             run.error = f"{type(exc).__name__}: {exc}"
             log.error("source %s stopped: %s", run.source.name, run.error)
         finally:
@@ -281,17 +286,7 @@ class Pipeline:
                 handling.append(exc)
                 raise
 
-        try:
-            run.source.run(emit_and_handle, stop)
-        except Exception as exc:  # noqa: BLE001 - a dead source must not take the pipeline down
-            if handling and exc is handling[0]:
-                raise
-            run.error = f"{type(exc).__name__}: {exc}"
-            log.error("source %s stopped: %s", run.source.name, run.error)
-        finally:
-            run.ended_on_its_own = not stop.is_set()
-            run.done.set()
-            run.ring.close()
+        self._source_main(run, stop, emit_and_handle, handling)
 
     def _run_latest(self, stop: threading.Event) -> None:
         pending: list[_Arrival] = []
