@@ -173,7 +173,22 @@ class GroundEstimator:
     searches: int = 0
     _up: np.ndarray | None = None  # up in camera axes (floor, imu or level + body axis)
     _height: float | None = None  # camera height above the floor, when a floor is seen
+    _body_up: np.ndarray | None = None  # the performer's axis blended over frames (level camera)
     _checked_ns: int | None = None
+
+    #: A new estimate replaces the one in use only when it moved this much: every change of the
+    #: rotation costs the finder its cached rays (a few ms), and sub-degree wobble is noise.
+    MIN_TURN_DEG = 0.5
+    MIN_SHIFT_M = 0.01
+
+    def due(self, t_ns: int) -> bool:
+        """Whether the floor is to be searched again at ``t_ns``."""
+        return (self._checked_ns is None or t_ns < self._checked_ns
+                or t_ns - self._checked_ns >= self.recheck_s * 1e9)
+
+    def use_given(self, t_ns: int) -> None:
+        """The frames carry their own extrinsics (nothing to estimate)."""
+        self._set_source(t_ns, "given")
 
     @property
     def floor_seen(self) -> bool:
@@ -188,9 +203,7 @@ class GroundEstimator:
     def update(self, t_ns: int, points_cam: np.ndarray | None) -> None:
         """Search the floor again when due (``points_cam``: the frame's camera points, or None
         when there is nothing to search in)."""
-        due = (self._checked_ns is None or t_ns < self._checked_ns
-               or t_ns - self._checked_ns >= self.recheck_s * 1e9)
-        if not due or points_cam is None:
+        if not self.due(t_ns) or points_cam is None:
             return
         self._checked_ns = t_ns
         self.searches += 1
@@ -199,7 +212,10 @@ class GroundEstimator:
         floor = find_floor(points_cam, prior, max_tilt_deg=8.0 if self.gravity_up is not None else 50.0)
         if floor is not None:
             up, height = floor
-            self._up, self._height = (prior, height) if self.gravity_up is not None else (up, height)
+            up = prior if self.gravity_up is not None else up
+            if (self._up is None or self._height is None or tilt_deg(up, self._up) > self.MIN_TURN_DEG
+                    or abs(height - self._height) > self.MIN_SHIFT_M):
+                self._up, self._height = up, height
             self._set_source(t_ns, "imu+floor" if self.gravity_up is not None else "floor")
             return
         self._height = None
@@ -208,15 +224,18 @@ class GroundEstimator:
             self._set_source(t_ns, "imu")
         else:
             if self.source not in ("level", "level+body"):
-                self._up = None
+                self._up = self._body_up = None
             self._set_source(t_ns, self.source if self.source in ("level", "level+body") else "level")
 
     def refine_with_body(self, t_ns: int, axis: np.ndarray | None, weight: float = 0.1) -> None:
         """Blend the performer's vertical axis (camera axes) into a level camera's up."""
         if axis is None or self.gravity_up is not None or self.floor_seen:
             return
-        up = self.up() * (1.0 - weight) + np.asarray(axis, np.float64) * weight
-        self._up = up / np.linalg.norm(up)
+        current = self.up() if self._body_up is None else self._body_up
+        blended = current * (1.0 - weight) + np.asarray(axis, np.float64) * weight
+        self._body_up = blended / np.linalg.norm(blended)
+        if tilt_deg(self._body_up, self.up()) > self.MIN_TURN_DEG:
+            self._up = self._body_up
         self._set_source(t_ns, "level+body")
 
     def camera_to_world(self, height_m: float) -> np.ndarray:

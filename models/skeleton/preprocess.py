@@ -135,7 +135,6 @@ class PersonFinder:
     background: BackgroundModel | None = None
     counters: FinderCounters = field(default_factory=FinderCounters)
     ground: GroundEstimator = field(default_factory=GroundEstimator)
-    _given: bool = field(default=False, repr=False)  # the last frame came with its camera_to_world
     _height_est: float | None = field(default=None, repr=False)  # camera height, no floor in view
     _last_center: np.ndarray | None = None
     _past_depth: deque = field(default_factory=lambda: deque(maxlen=64), repr=False)
@@ -164,37 +163,27 @@ class PersonFinder:
     @property
     def up_source(self) -> str | None:
         """Where up and the floor came from: given, imu, imu+floor, floor, level, level+body."""
-        return "given" if self._given else self.ground.source
+        return self.ground.source
 
     def _camera_to_world(self, frame: DepthFrame, s: int) -> np.ndarray | None:
         """The frame's camera_to_world, or when it is not known (identity extrinsics) the
         ground estimator's (re-searched every few seconds); with no floor in view its height is
         provisional until the performer is found (``_no_floor``)."""
         c2w = np.asarray(frame.camera_to_world, np.float64)
+        ground = self.ground
         if not _is_identity(c2w):
-            if not self._given:
-                self._given = True
-                self.ground.changes.append((int(frame.t_ns), "given"))
-                self.counters.up_source_changes += 1
-            return c2w
-        if self._given:
-            self._given = False
-        before = len(self.ground.changes)
-        searches = self.ground.searches
-        self.ground.update(frame.t_ns, None if not self._ground_due(frame.t_ns) else self._camera_points(frame, s))
-        self.counters.floor_searches += self.ground.searches - searches
-        self.counters.up_source_changes += len(self.ground.changes) - before
-        if not self.ground.floor_seen:
-            self.counters.no_floor += 1
-        return self.ground.camera_to_world(0.0)
-
-    def _ground_due(self, t_ns: int) -> bool:
-        checked = self.ground._checked_ns
-        return checked is None or t_ns < checked or t_ns - checked >= self.ground.recheck_s * 1e9
+            ground.use_given(frame.t_ns)
+        else:
+            ground.update(frame.t_ns, self._camera_points(frame, s) if ground.due(frame.t_ns) else None)
+            if not ground.floor_seen:
+                self.counters.no_floor += 1
+        self.counters.floor_searches = ground.searches
+        self.counters.up_source_changes = len(ground.changes)
+        return c2w if ground.source == "given" else ground.camera_to_world(0.0)
 
     @property
     def _no_floor(self) -> bool:
-        return not self._given and not self.ground.floor_seen
+        return self.ground.source != "given" and not self.ground.floor_seen
 
     def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
                ) -> tuple[np.ndarray, np.ndarray | None]:
