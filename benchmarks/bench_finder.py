@@ -42,6 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from live.core import assets  # noqa: E402
+from live.core.depth import between_worlds  # noqa: E402
 from live.core.report import percentiles  # noqa: E402
 
 HEIGHTS = (0.5, 0.9, 1.3, 1.8, 2.5)
@@ -232,8 +233,7 @@ def _root_aligned_error(pred: np.ndarray, truth_world: np.ndarray, solved_c2w: n
                         true_c2w: np.ndarray) -> float:
     """MPJPE (m) after root alignment, the truth moved into the frame the skeleton was solved in
     (through the camera: solved_c2w @ inverse(true_c2w))."""
-    m = solved_c2w @ np.linalg.inv(true_c2w)
-    truth = truth_world @ m[:3, :3].T + m[:3, 3]
+    truth = between_worlds(truth_world, true_c2w, solved_c2w)
     return float(np.linalg.norm((pred - pred[0]) - (truth - truth[0]), axis=-1).mean())
 
 

@@ -292,3 +292,13 @@ def test_docs_figure(tmp_path, shared_bvh):
     out = virtual_depth_figure(tmp_path / "fig.png", shared_bvh / "cc_002_01.bvh", frame=10)
     img = cv2.imread(str(out))
     assert img.shape == (400, 2 * 640 + 6, 3) and img.std() > 20
+
+
+def test_between_worlds_moves_points_through_the_camera():
+    from live.core.depth import between_worlds, points_to_world
+
+    true_c2w = look_at_camera(2.5, 1.4, 0.3)
+    solved_c2w = look_at_camera(1.0, 0.9, -0.7)  # another world frame seeing the same camera
+    cam = np.array([[0.1, -0.2, 2.0], [-0.3, 0.4, 3.1]])
+    moved = between_worlds(points_to_world(cam, true_c2w), true_c2w, solved_c2w)
+    np.testing.assert_allclose(moved, points_to_world(cam, solved_c2w), atol=1e-6)

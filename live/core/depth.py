@@ -24,5 +24,14 @@ def points_to_world(points: np.ndarray, camera_to_world: np.ndarray) -> np.ndarr
     return (p @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
 
 
+def between_worlds(points: np.ndarray, from_camera_to_world: np.ndarray, to_camera_to_world: np.ndarray
+                   ) -> np.ndarray:
+    """(..., 3) world points of one world frame expressed in another that sees the same camera
+    (e.g. the truth moved into the frame a skeleton stage estimated for a camera without
+    extrinsics): through the camera, ``to @ inverse(from)``; float64."""
+    m = np.asarray(to_camera_to_world, np.float64) @ np.linalg.inv(np.asarray(from_camera_to_world, np.float64))
+    return np.asarray(points, np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float64)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from live.core.depth import between_worlds
 from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth
 from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe, pck, per_joint_mpjpe
@@ -71,8 +72,7 @@ def truth_in_solved_frame(truth_joints: np.ndarray, solved_c2w: np.ndarray | Non
     (solved_c2w @ inverse(true_c2w)) when the stage estimated its own extrinsics, else as they are."""
     if solved_c2w is None or true_c2w is None:
         return truth_joints
-    m = np.asarray(solved_c2w, np.float64) @ np.linalg.inv(true_c2w)
-    return np.asarray(truth_joints, np.float64) @ m[:3, :3].T + m[:3, 3]
+    return between_worlds(truth_joints, true_c2w, solved_c2w)
 
 
 def _acc_error(pred: np.ndarray, gt: np.ndarray, t_ns: np.ndarray) -> float | None:

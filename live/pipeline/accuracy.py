@@ -6,6 +6,7 @@ from collections import OrderedDict
 
 import numpy as np
 
+from live.core.depth import between_worlds
 from live.core.frames import FrameResult
 from live.core.metrics import mpjpe, pa_mpjpe, pck
 
@@ -39,8 +40,7 @@ class AccuracySink:
             truth = self._truth[result.skeleton.t_ns]
             solved = result.skeleton.camera_to_world
             if self.true_camera_to_world is not None and solved is not None:
-                m = np.asarray(solved, np.float64) @ np.linalg.inv(self.true_camera_to_world)
-                truth = truth @ m[:3, :3].T + m[:3, 3]
+                truth = between_worlds(truth, self.true_camera_to_world, solved)
             self.gt.append(truth)
 
     def close(self) -> None:
