@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from live.core.gravity import STANDARD_GRAVITY, GravityEstimator, angle_deg
-from live.core.rotations import quat_from_axis_angle, quat_to_matrix
+from live.core.gravity import STANDARD_GRAVITY, GravityEstimator
+from live.core.rotations import angle_deg, quat_from_axis_angle, quat_to_matrix
 
 RATE_HZ = 100.0
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from live.core.frames import MocapPacket
+from live.core.rotations import angle_deg
 
 STANDARD_GRAVITY = 9.80665
 #: The stream name of a camera's own IMU is the camera stream's name plus this.
@@ -54,12 +55,6 @@ class GravityConfig:
     drift_deg: float = 1.0
     # A gap longer than this in the samples ends a still period: the camera may have moved unseen.
     max_gap_s: float = 0.25
-
-
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle in degrees between two non-zero 3-vectors."""
-    c = float(a @ b) / math.sqrt(float(a @ a) * float(b @ b))
-    return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
 def camera_imu_sample(frame: object) -> tuple[int, np.ndarray, np.ndarray | None] | None:
@@ -205,5 +200,5 @@ class GravityEstimator:
         return self._period_sum is not None
 
 
-__all__ = ["CAMERA_IMU_SUFFIX", "GravityConfig", "GravityEstimator", "STANDARD_GRAVITY", "angle_deg",
+__all__ = ["CAMERA_IMU_SUFFIX", "GravityConfig", "GravityEstimator", "STANDARD_GRAVITY",
            "camera_imu_sample"]

@@ -9,6 +9,8 @@ Every function takes any leading batch shape and is pure.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _EPS = 1e-12
@@ -247,3 +249,9 @@ def sixd_to_matrix(d6: np.ndarray) -> np.ndarray:
     y = b / np.maximum(np.linalg.norm(b, axis=-1, keepdims=True), _EPS)
     z = np.cross(x, y)
     return np.stack([x, y, z], axis=-1)
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees between two non-zero 3-vectors (directions, not rotations)."""
+    c = float(a @ b) / math.sqrt(float(a @ a) * float(b @ b))
+    return math.degrees(math.acos(min(1.0, max(-1.0, c))))

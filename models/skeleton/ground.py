@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from live.core.rotations import angle_deg
+
 #: Up in the camera frame (OpenCV axes: x right, y down, z forward) of a level camera.
 LEVEL_UP = np.array([0.0, -1.0, 0.0])
 #: The stature a performer is assumed to have when only their upper body is seen (the top of the
@@ -52,13 +54,6 @@ def camera_to_world_from_up(up_cam: np.ndarray, height_m: float) -> np.ndarray:
     return m
 
 
-def tilt_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle in degrees between two directions."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    c = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
 def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt_deg: float = 50.0,
                distance_m: float = 0.02, min_points: int = 150, below_share: float = 0.03,
                max_planes: int = 4, seed: int = 0) -> tuple[np.ndarray, float] | None:
@@ -86,7 +81,7 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
         n, d, inliers = ransac_plane(cand, distance_m, 200, rng)
         if n @ prior < 0:
             n, d = -n, -d
-        if len(inliers) >= min_support and tilt_deg(n, prior) <= max_tilt_deg and d > 0.05:
+        if len(inliers) >= min_support and angle_deg(n, prior) <= max_tilt_deg and d > 0.05:
             heights = pts @ n + d  # signed height of every point above the plane
             if float(np.mean(heights < -0.10)) <= below_share and (best is None or d > best[1]):
                 best = (n, d)  # lower plane = larger camera height above it
@@ -143,7 +138,7 @@ def body_up(points_world: np.ndarray, up: np.ndarray, max_tilt_deg: float = 25.0
         return None
     if axis @ up < 0:
         axis = -axis
-    return axis if tilt_deg(axis, up) <= max_tilt_deg else None
+    return axis if angle_deg(axis, up) <= max_tilt_deg else None
 
 
 def floor_under_person(y_low: float, y_top: float, cut_below: bool = False) -> float:
@@ -213,7 +208,7 @@ class GroundEstimator:
         if floor is not None:
             up, height = floor
             up = prior if self.gravity_up is not None else up
-            if (self._up is None or self._height is None or tilt_deg(up, self._up) > self.MIN_TURN_DEG
+            if (self._up is None or self._height is None or angle_deg(up, self._up) > self.MIN_TURN_DEG
                     or abs(height - self._height) > self.MIN_SHIFT_M):
                 self._up, self._height = up, height
             self._set_source(t_ns, "imu+floor" if self.gravity_up is not None else "floor")
@@ -234,7 +229,7 @@ class GroundEstimator:
         current = self.up() if self._body_up is None else self._body_up
         blended = current * (1.0 - weight) + np.asarray(axis, np.float64) * weight
         self._body_up = blended / np.linalg.norm(blended)
-        if tilt_deg(self._body_up, self.up()) > self.MIN_TURN_DEG:
+        if angle_deg(self._body_up, self.up()) > self.MIN_TURN_DEG:
             self._up = self._body_up
         self._set_source(t_ns, "level+body")
 
