@@ -224,6 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
                    description="List connected OAK devices, RealSense devices and serial ports.")
+    from live.app.batch_args import add_batch_parser  # argparse only: Ray is imported by the command
+
+    add_batch_parser(sub)
     return parser
 
 
@@ -231,7 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
 COMMAND_MODULES = {"demo": "commands", "replay": "commands", "render": "commands", "record": "commands",
                    "run": "commands", "export": "session_commands", "info": "session_commands",
                    "devices": "device_commands", "calibrate": "device_commands", "synth": "tool_commands",
-                   "eval": "tool_commands", "train": "tool_commands"}
+                   "eval": "tool_commands", "train": "tool_commands", "batch": "batch"}
 
 
 def _command(name: str):
