@@ -66,15 +66,21 @@ def test_godette_rest_joints_are_the_files_own_bones():
     checked = 0
     for i, name in enumerate(JOINT_NAMES):
         src = h.joint_sources[i]
-        if src is None or name == "spine1":
+        if src is None:
             continue
         want = turn @ (bones[node_to_bone[src]] - bones["hips"])
         np.testing.assert_allclose(rest[i] - rest[0], want, atol=1e-3, err_msg=name)
         checked += 1
-    assert checked == 20  # all but spine2 (Godette has no upperChest: it lies between spine and chest)
-    # Her spine bone sits on her hips: spine1 is put on the way up to spine2, still on the centre line.
-    s1, s2 = rest[JOINT_INDEX["spine1"]], rest[JOINT_INDEX["spine2"]]
-    assert rest[0, 1] < s1[1] < s2[1] < rest[JOINT_INDEX["spine3"]][1]
+    assert checked == 21  # all but spine2 (Godette has no upperChest: it lies between spine and chest)
+    # Her spine bone sits on her hips, and so does spine1: the rig turns her own bones.
+    s2 = rest[JOINT_INDEX["spine2"]]
+    assert np.linalg.norm(rest[JOINT_INDEX["spine1"]] - rest[0]) < 1e-3
+    assert rest[0, 1] < s2[1] < rest[JOINT_INDEX["spine3"]][1]
+    rig = h.body.rig
+    assert rig.virtual.nonzero()[0].tolist() == [JOINT_INDEX["spine2"]]
+    assert rig.names[:3] == ("Hips", "LeftUpperLeg", "RightUpperLeg") and "Chest" in rig.names
+    assert "UpperChest" not in rig.names
+    np.testing.assert_allclose(rig.rest, np.tile([1.0, 0, 0, 0], (len(rig.names), 1)), atol=1e-9)  # normalised
 
 
 @needs_godette

@@ -101,7 +101,8 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
         host, port = vmc_address
         sinks.append(VmcSink(host, port, rate_hz=opts.vmc_rate or None, max_bundle_bytes=opts.vmc_mtu,
                              avatar_rest_joints=None if body is None else body.rest_joints,
-                             extra_bones=() if body is None else body.extra_bones))
+                             extra_bones=() if body is None else body.extra_bones,
+                             rig=None if body is None else body.rig))
         if not opts.avatar:  # said once the address is known good: a mistake stays one line
             print("livecap: --vmc without --avatar: sending the default avatar (choose one with --avatar)",
                   file=sys.stderr, flush=True)

@@ -5,8 +5,12 @@ models.train.anny_bodies."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from live.body.gltf_rig import AvatarRig
 
 
 @dataclass(frozen=True)
@@ -28,7 +32,9 @@ class Body:
     rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
     phenotype: the Anny parameters it was made from, or None; joint_names: the avatar file's own
     name for each of the 22 joints (a VRM's humanoid bone nodes), or None (canonical names);
-    extra_bones: the file's humanoid bones beyond the 22, parents first (VMC sends them at rest).
+    extra_bones: the file's humanoid bones beyond the 22, parents first (VMC sends them at rest);
+    rig: a VRM / glTF avatar's own bones, their rest frames and the joints it has no bone for
+    (live/body/gltf_rig.py: the retarget stage fits poses to it, VMC drives its bones), or None.
     Arrays of a loaded body are read-only (load_body shares them between callers)."""
 
     vertices: np.ndarray
@@ -40,6 +46,7 @@ class Body:
     phenotype: dict | None = None
     joint_names: tuple[str, ...] | None = None
     extra_bones: tuple[ExtraBone, ...] = ()
+    rig: AvatarRig | None = None
 
     @property
     def height(self) -> float:

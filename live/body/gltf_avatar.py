@@ -30,6 +30,7 @@ import numpy as np
 
 from live.body.body import Body, ExtraBone
 from live.body.gltf_file import open_gltf, read_accessor, world_matrices
+from live.body.gltf_rig import build_rig
 from live.core.errors import FormatError, LivecapError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
 
@@ -271,6 +272,26 @@ def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
 # ----------------------------------------------------------------------------- the avatar
 
 
+#: Canonical joint -> Unity HumanBodyBones name for a plain glTF skin (VRM files name their bones);
+#: spine2 / spine3 are settled in ``_real_bones``.
+_SKIN_BONE_NAMES = {joint: bone[0].upper() + bone[1:] for bone, joint in VRM_BONE_TO_JOINT.items()}
+
+
+def _real_bones(kind: str, bones: dict[str, int], src: dict, owners: dict[int, int]) -> dict[int, tuple[int, str]]:
+    """Canonical joint -> (node, HumanBodyBones name) for the joints that are a bone of the file (a
+    joint placed between two bones is none). A VRM names its bones; for a plain skin the torso
+    bones above the spine are Chest, then UpperChest, in order (one chest bone is the Chest)."""
+    real = {j: int(src[name]) for name, j in JOINT_INDEX.items()
+            if isinstance(src.get(name), int) and owners.get(int(src[name])) == j}
+    if kind != "skin":
+        node_bone = {node: bone for bone, node in bones.items() if bone in VRM_BONE_TO_JOINT or bone in
+                     ("chest", "upperChest")}
+        return {j: (n, node_bone[n][0].upper() + node_bone[n][1:]) for j, n in real.items() if n in node_bone}
+    chest = iter(("Chest", "UpperChest"))
+    return {j: (n, next(chest) if JOINT_NAMES[j] in ("spine2", "spine3") else _SKIN_BONE_NAMES[JOINT_NAMES[j]])
+            for j, n in sorted(real.items())}
+
+
 def _extra_bone_names(kind: str, bones: dict[str, int]) -> dict[int, str]:
     """Node -> Unity HumanBodyBones name, for the humanoid bones beyond the 22 joints. A VRM 1.0 side
     with a ``ThumbMetacarpal`` uses 1.0's thumb names; one without uses 0.x's (as some converters write)."""
@@ -373,19 +394,16 @@ def _pose_arms_to_t(world: np.ndarray, parents: np.ndarray, src: dict, left_sign
 
 
 def _place_missing(joints: np.ndarray, src: dict) -> None:
-    """Joints of our frame the file has no bone for, placed in place: a toe without a toes bone at
-    the default skeleton's toe offset from the ankle scaled by the leg's length (ahead, +z); a spine
-    bone on the hips (common in VRoid and Blender exports, which would leave the pelvis without a
-    direction to its spine) a third of the way up to spine2 (it keeps the spine bone's weights)."""
+    """A toe the file has no toes bone for, placed at the default skeleton's toe offset from the
+    ankle scaled by the leg's length (ahead, +z). Every joint that is a file bone stays on its bone,
+    even a spine bone on the hips (VRoid and Blender exports): the output rig turns the file's own
+    bones (live/body/gltf_rig.py), so its joints must be where the file has them."""
     ref = default_rest_joints()
     for side in ("left", "right"):
         hip, ankle, foot = (JOINT_INDEX[f"{side}_{n}"] for n in ("hip", "ankle", "foot"))
         if f"{side}_foot" not in src:
             scale = np.linalg.norm(joints[ankle] - joints[hip]) / np.linalg.norm(ref[ankle] - ref[hip])
             joints[foot] = joints[ankle] + scale * (ref[foot] - ref[ankle])
-    pelvis, spine1, spine2 = JOINT_INDEX["pelvis"], JOINT_INDEX["spine1"], JOINT_INDEX["spine2"]
-    if np.linalg.norm(joints[spine1] - joints[pelvis]) < 0.01 * float(joints[:, 1].max()):
-        joints[spine1] = joints[pelvis] + (joints[spine2] - joints[pelvis]) / 3.0
 
 
 #: What a field of the wrong JSON type (a string for a count, a list for an index) raises deep in the
@@ -447,7 +465,9 @@ def _read(path: Path, where: str) -> GltfHumanoid:
     body = Body(vertices=verts.astype(np.float32), faces=faces.astype(np.int32), rest_joints=joints.astype(np.float32),
                 weights=weights.astype(np.float32), parents=PARENTS.copy(), name=path.stem, phenotype=None,
                 joint_names=bvh_joint_names(sources, names),
-                extra_bones=_extra_bones(kind, bones, world, parents, to_ours, joints, owners))
+                extra_bones=_extra_bones(kind, bones, world, parents, to_ours, joints, owners),
+                rig=build_rig(kind, world, parents, to_ours, _real_bones(kind, bones, src, owners),
+                              _extra_bone_names(kind, bones)))
     return GltfHumanoid(body=body, kind=kind, bones=bones, node_names=names, joint_sources=sources,
                         turned=left_sign < 0, to_ours=to_ours)
 

@@ -44,6 +44,7 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message_builder import OscMessageBuilder
 
 from live.body.body import ExtraBone
+from live.body.gltf_rig import AvatarRig
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
 from live.core.rotations import quat_identity, quat_multiply, quat_normalize, quat_rotate
@@ -93,27 +94,42 @@ def vmc_messages(
     t_s: float,
     tracking_ok: bool = True,
     extra_bones: Sequence[ExtraBone] = (),
+    rig: AvatarRig | None = None,
 ) -> list[tuple[str, list]]:
     """One frame as (address, args) pairs, in bundle order (see the module docstring).
 
     root (3,) pelvis world position; rotations (22, 4) local (w, x, y, z); rest_joints (22, 3);
-    extra_bones: sent at rest after the 22 (``extra_bone_messages``).
+    extra_bones: sent at rest after the 22 (``extra_bone_messages``); rig: a VRM / glTF avatar's
+    own bones (``rig_bone_messages``), sent instead of the 22 canonical bones and extra_bones.
     """
     rotations = quat_normalize(np.asarray(rotations, dtype=np.float64))
     if rotations.shape != (NUM_JOINTS, 4):
         raise UserInputError(f"VMC needs (22, 4) rotations, got {rotations.shape}")
-    offsets = rest_offsets(np.asarray(rest_joints, dtype=np.float64))
-    offsets[0] = np.asarray(root, dtype=np.float64)  # Hips carries the pelvis world position
-    pos_u = position_to_unity(offsets)
-    rot_u = quat_to_unity(rotations)
-    msgs: list[tuple[str, list]] = [
+    head: list[tuple[str, list]] = [
         (ADDR_OK, [OK_LOADED, CALIBRATION_CALIBRATED, CALIBRATION_MODE_NORMAL, int(bool(tracking_ok))]),
         (ADDR_TIME, [float(t_s)]),
         (ADDR_ROOT, ["root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
     ]
+    if rig is not None:
+        return head + rig_bone_messages(rig, root, rotations)
+    offsets = rest_offsets(np.asarray(rest_joints, dtype=np.float64))
+    offsets[0] = np.asarray(root, dtype=np.float64)  # Hips carries the pelvis world position
+    pos_u = position_to_unity(offsets)
+    rot_u = quat_to_unity(rotations)
+    msgs = head
     for j, bone in enumerate(UNITY_BONES):
         msgs.append((ADDR_BONE, [bone, *map(float, pos_u[j]), *map(float, rot_u[j])]))
     return msgs + extra_bone_messages(extra_bones)
+
+
+def rig_bone_messages(rig: AvatarRig, root: np.ndarray, rotations: np.ndarray) -> list[tuple[str, list]]:
+    """Bone messages for a VRM / glTF avatar's own bones (live/body/gltf_rig.py): each bone the file
+    maps, under its own HumanBodyBones name (a file without an upperChest gets its chest as Chest),
+    its local position and rotation for its own rest frame and transform parent (a normalised VRM
+    0.x: identity at rest; a VRM 1.0 or a rolled bone: its own rest rotation), in Unity's frame."""
+    pos, rot = rig.bone_values(root, rotations)
+    pos_u, rot_u = position_to_unity(pos), quat_to_unity(rot)
+    return [(ADDR_BONE, [name, *map(float, pos_u[i]), *map(float, rot_u[i])]) for i, name in enumerate(rig.names)]
 
 
 def extra_bone_messages(extra_bones: Sequence[ExtraBone]) -> list[tuple[str, list]]:
@@ -228,6 +244,7 @@ class VmcSink:
         clock: Callable[[], float] = time.monotonic,
         max_bundle_bytes: int | None = None,
         extra_bones: Sequence[ExtraBone] = (),
+        rig: AvatarRig | None = None,
     ) -> None:
         if not host:
             raise UserInputError("VMC needs a host name or address to send to")
@@ -256,6 +273,7 @@ class VmcSink:
         self.host, self.port = host, int(port)
         self._rest = rest.astype(np.float64)
         self._extra = tuple(extra_bones)
+        self._rig = rig
         extra_bone_messages(self._extra)  # a bad bone is refused here, not on every frame
         self._period = None if rate_hz is None else 1.0 / float(rate_hz)
         self._min_conf = float(min_confidence)
@@ -341,7 +359,7 @@ class VmcSink:
         if result.skeleton is not None:
             tracking_ok = float(np.mean(result.skeleton.confidence)) >= self._min_conf
         avatar = result.avatar
-        msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok, self._extra)
+        msgs = vmc_messages(avatar.root, avatar.rotations, self._rest, t_s, tracking_ok, self._extra, self._rig)
         for datagram in encode_bundles(msgs, self.max_bundle_bytes):
             try:
                 self._sock.send(datagram)

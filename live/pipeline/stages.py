@@ -98,12 +98,19 @@ class RetargetStage:
             else:
                 self._retargeter.set_source_rest(rest)
         pose = self._retargeter.process(frame)
+        glob = self._retargeter.last_globals
+        rig = getattr(self.avatar, "rig", None)
+        if rig is not None:
+            # A VRM / glTF avatar: joints its file has no bone for turn with their parent, so that
+            # its own bones (VMC, avatar.bvh) can take the pose (live/body/gltf_rig.py).
+            glob, rotations, joints = rig.fit_pose(glob, pose.joints, self.avatar.rest_joints)
+            pose = AvatarPose(t_ns=pose.t_ns, root=pose.root, rotations=rotations, joints=joints)
         vertices = None
         if self.skin:
             from live.body.skinning import pose_transforms, skin
 
             # The retargeter's own global rotations and joints: no second FK from quaternions.
-            g = pose_transforms(self._retargeter.last_globals, pose.joints, self.avatar.rest_joints)
+            g = pose_transforms(glob, pose.joints, self.avatar.rest_joints)
             vertices = skin(self.avatar.vertices, self.avatar.weights, g[None])[0]
         result.avatar = AvatarPose(t_ns=pose.t_ns, root=np.asarray(pose.root, np.float32),
                                    rotations=np.asarray(pose.rotations, np.float32),
