@@ -349,7 +349,8 @@ bpy.ops.import_anim.bvh(filepath=bvh, global_scale=1.0, rotate_mode="NATIVE", ax
 scene = bpy.context.scene
 arm = [o for o in scene.objects if o.type == "ARMATURE"][0]
 frames = {}
-for f in range(scene.frame_start, scene.frame_end + 1):
+start, end = (int(round(f)) for f in arm.animation_data.action.frame_range)
+for f in range(start, end + 1):
     scene.frame_set(f)
     frames[f] = {b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones}
 json.dump({"fps": scene.render.fps / scene.render.fps_base, "frames": frames}, open(out, "w"))
