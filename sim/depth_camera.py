@@ -13,6 +13,10 @@ Noise model (a stereo or structured-light sensor measures disparity d = f b / z,
 Gaussian disparity noise (so depth error grows as z^2 / (f b)), disparity quantisation to
 1 / 2^subpixel_bits px, invalid pixels at depth edges, in the occlusion shadow that the second
 view cannot see, at grazing angles, random dropouts, and outside [min_range, max_range].
+A time-of-flight sensor (``kind="tof"``) measures depth itself: Gaussian depth noise growing
+linearly with range, 1 mm steps, no occlusion shadow. Both can add flying pixels (edge pixels
+whose depth lies between the foreground and the background, as mixed returns give) and holes in
+blobs (dark, shiny or thin material: a few places lose depth, not a scatter of single pixels).
 """
 
 from __future__ import annotations
@@ -50,6 +54,8 @@ class CameraPreset:
     fps: float
     subpixel_bits: int
     disparity_sigma_px: float = 0.1
+    kind: str = "stereo"  # "stereo" (disparity noise) or "tof" (depth noise, no shadow)
+    tof_sigma_m_per_m: float = 0.0  # time of flight: depth noise sd per metre of range
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -68,6 +74,9 @@ class CameraPreset:
 #   shared ITOP frames' intrinsics), disparity still resolved at 640 px (one more fractional bit);
 #   sigma fitted to the real frames' plane-fit noise on the body (docs/depth_realism.md: about
 #   10 mm at 2.75-3.25 m), 0.55x the kinect-v1 sigma scaled to this focal length.
+# - kinect-v2: time of flight, 512x424, fx = fy = 364.85 px (the shared Panoptic frame's
+#   intrinsics), 0.5-4.5 m; depth noise about 2.5 mm per metre of range, fitted to the real
+#   frame's plane-fit noise on the body (docs/depth_realism.md: 6-7 mm at 2.25-2.75 m).
 PRESETS: dict[str, CameraPreset] = {
     p.name: p
     for p in (
@@ -79,6 +88,8 @@ PRESETS: dict[str, CameraPreset] = {
                      0.07),
         CameraPreset("xtion", 320, 240, 285.7143, 285.7143, 159.5, 119.5, 0.075, 0.8, 4.5, 30.0, 4,
                      0.019),
+        CameraPreset("kinect-v2", 512, 424, 364.85, 364.85, 255.5, 211.5, 0.0, 0.5, 4.5, 30.0, 0,
+                     0.0, kind="tof", tof_sigma_m_per_m=0.0025),
     )
 }
 
@@ -106,6 +117,10 @@ class NoiseModel:
     dropout: probability that a pixel drops out at random.
     range_limits: drop depths outside [min_range_m, max_range_m] of the preset.
     noise_block_px: disparity noise is shared over square patches of this size (1 = per pixel).
+    flying_pixels: share of the pixels beside a depth edge (foreground side and background side)
+      that report a depth between the two surfaces instead of their own or none.
+    hole_blobs: share of the image lost in blobs of about hole_blob_px pixels (material the
+      sensor cannot measure), on top of the single-pixel ``dropout``.
     """
 
     disparity_sigma_px: float | None = None
@@ -118,10 +133,16 @@ class NoiseModel:
     dropout: float = 0.01
     range_limits: bool = True
     noise_block_px: int = 2
+    flying_pixels: float = 0.0
+    hole_blobs: float = 0.0
+    hole_blob_px: int = 12
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.dropout < 1.0:
-            raise UserInputError(f"dropout must be in [0, 1), got {self.dropout}")
+        for name in ("dropout", "flying_pixels", "hole_blobs"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise UserInputError(f"{name} must be in [0, 1), got {getattr(self, name)}")
+        if self.hole_blob_px < 1:
+            raise UserInputError(f"hole_blob_px must be >= 1, got {self.hole_blob_px}")
         if (self.disparity_sigma_px or 0.0) < 0 or self.edge_jump_px < 0 or self.noise_block_px < 1:
             raise UserInputError("noise sigma and edge jump must be >= 0, noise_block_px >= 1")
         if self.grazing_deg is not None and not 0.0 < self.grazing_deg <= 90.0:
@@ -324,6 +345,33 @@ def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: N
     """Ideal depth z (H, W) float32 metres (inf = no hit) and |cos| incidence (H, W) -> (H, W)
     uint16 mm as the sensor would report it. Draws from rng only for the noise terms that are on."""
     z = np.asarray(z, dtype=np.float32)
+    flying = None
+    if noise.flying_pixels > 0:
+        z, flying = _flying_pixels(z, noise.flying_pixels, rng)
+    if preset.kind == "tof":
+        valid, depth_mm = _tof_depth(z, preset, noise, rng)
+    else:
+        valid, depth_mm = _stereo_depth(z, preset, noise, rng)
+    if flying is not None:  # a mixed return is a measurement, not an edge the matcher drops
+        valid |= flying & np.isfinite(z)
+    if noise.grazing_deg is not None:
+        valid &= cos >= np.float32(np.cos(np.radians(noise.grazing_deg)))
+    if noise.dropout > 0:
+        valid &= rng.random(z.shape, dtype=np.float32) >= np.float32(noise.dropout)
+    if noise.hole_blobs > 0:
+        valid &= ~_hole_blobs(rng, z.shape, noise.hole_blobs, noise.hole_blob_px)
+    lo, hi = 0.0, 65535.0  # what fits in uint16 millimetres
+    if noise.range_limits:
+        lo, hi = preset.min_range_m * 1000.0, min(preset.max_range_m * 1000.0, hi)
+    valid &= np.isfinite(depth_mm) & (depth_mm >= np.float32(lo)) & (depth_mm <= np.float32(hi))
+    out = np.rint(np.where(valid, depth_mm, np.float32(0.0))).astype(np.uint16)
+    out[~valid] = 0
+    return out
+
+
+def _stereo_depth(z: np.ndarray, preset: CameraPreset, noise: NoiseModel,
+                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(valid, depth mm) of a disparity sensor: noise and quantisation act on disparity."""
     fb = np.float32(preset.fx * preset.baseline_m)
     disp = fb / z  # disparity in px; inf (no hit) gives 0
     valid = disp > 0
@@ -331,8 +379,6 @@ def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: N
         valid &= ~_edges(disp, noise.edge_jump_px, noise.edge_width_px)
     if noise.occlusion:
         valid &= ~_occluded(disp)
-    if noise.grazing_deg is not None:
-        valid &= cos >= np.float32(np.cos(np.radians(noise.grazing_deg)))
     sigma = preset.disparity_sigma_px if noise.disparity_sigma_px is None else noise.disparity_sigma_px
     measured = disp
     if sigma > 0:
@@ -340,17 +386,64 @@ def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: N
     if noise.quantize:
         step = np.float32(0.5 ** preset.subpixel_bits if noise.subpixel else 1.0)
         measured = np.rint(measured * (1 / step)) * step
-    if noise.dropout > 0:
-        valid &= rng.random(z.shape, dtype=np.float32) >= np.float32(noise.dropout)
     valid &= measured > 0
-    depth_mm = np.float32(1000.0) * fb / np.where(valid, measured, np.float32(1.0))
-    lo, hi = 0.0, 65535.0  # what fits in uint16 millimetres
-    if noise.range_limits:
-        lo, hi = preset.min_range_m * 1000.0, min(preset.max_range_m * 1000.0, hi)
-    valid &= (depth_mm >= np.float32(lo)) & (depth_mm <= np.float32(hi))
-    out = np.rint(depth_mm).astype(np.uint16)
-    out[~valid] = 0
-    return out
+    return valid, np.float32(1000.0) * fb / np.where(valid, measured, np.float32(1.0))
+
+
+def _tof_depth(z: np.ndarray, preset: CameraPreset, noise: NoiseModel,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(valid, depth mm) of a time-of-flight sensor: depth noise growing with range, per pixel
+    (no matching window), no second view. ``disparity_sigma_px`` of the noise model, when set,
+    scales the preset's noise (sigma / 0.1 px, so the training range 0.05-0.3 spans 0.5-3x)."""
+    valid = np.isfinite(z)
+    zf = np.where(valid, z, np.float32(0.0))
+    if noise.edge_jump_px > 0:  # the same relative jump as a stereo edge of that many px at 1 m
+        inv = np.where(valid, 1.0 / np.maximum(zf, 1e-3), 0.0).astype(np.float32)
+        valid &= ~_edges(inv, noise.edge_jump_px * 0.05, noise.edge_width_px)
+    scale = 1.0 if noise.disparity_sigma_px is None else noise.disparity_sigma_px / 0.1
+    sigma = np.float32(preset.tof_sigma_m_per_m * scale * 1000.0) * zf
+    depth_mm = zf * np.float32(1000.0)
+    if scale > 0 and preset.tof_sigma_m_per_m > 0:
+        depth_mm = depth_mm + sigma * rng.standard_normal(z.shape, dtype=np.float32)
+    return valid & (depth_mm > 0), depth_mm
+
+
+def _flying_pixels(z: np.ndarray, share: float, rng: np.random.Generator
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Mixed returns at depth edges: of the pixels next to a neighbour more than 5 % deeper or
+    shallower (4-neighbourhood), ``share`` take a depth drawn uniformly between their own and that
+    neighbour's. Returns (new z, flying mask)."""
+    finite = np.isfinite(z)
+    zz = np.where(finite, z, np.float32(0.0))
+    other = np.zeros_like(zz)  # the most different neighbour's depth (0 = none)
+    gap = np.zeros_like(zz)
+    for axis, shift in ((1, 1), (1, -1), (0, 1), (0, -1)):
+        nb = np.roll(zz, shift, axis=axis)
+        nf = np.roll(finite, shift, axis=axis)
+        if axis == 1:
+            (nf[:, 0] if shift == 1 else nf[:, -1])[...] = False
+        else:
+            (nf[0] if shift == 1 else nf[-1])[...] = False
+        d = np.where(nf & finite, np.abs(nb - zz), 0.0)
+        take = d > gap
+        gap = np.where(take, d, gap)
+        other = np.where(take, nb, other)
+    edge = finite & (gap > np.float32(0.05) * np.maximum(zz, other))
+    flying = edge & (rng.random(z.shape, dtype=np.float32) < np.float32(share))
+    a = rng.random(z.shape, dtype=np.float32)
+    mixed = np.where(flying, zz + a * (other - zz), z).astype(np.float32)
+    return mixed, flying
+
+
+def _hole_blobs(rng: np.random.Generator, shape: tuple[int, int], share: float, blob_px: int) -> np.ndarray:
+    """(H, W) bool: about ``share`` of the image in smooth blobs about blob_px across (a coarse
+    random field, upsampled bilinearly, thresholded at its 1 - share quantile)."""
+    import cv2
+
+    h, w = shape
+    small = rng.random((max(h // blob_px, 1) + 1, max(w // blob_px, 1) + 1), dtype=np.float32)
+    field = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    return field > np.quantile(field, 1.0 - share)
 
 
 def _block_noise(rng: np.random.Generator, shape: tuple[int, int], block: int,

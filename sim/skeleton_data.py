@@ -13,9 +13,17 @@ random room with clutter, sensor noise on. Work is cut into jobs (one clip windo
 camera, a few frames) run by a process pool; each job has its own seed, so the result does not
 depend on the number of workers.
 
+With ``realism`` (the training default; ``sim.sensor_realism``), a job looks more like the
+depth users have: five sensor models (stereo and time of flight, 320x240 to 640x480) with
+flying pixels, holes in blobs and filled silhouettes, clothes and hair on the body, a desk edge
+or a chair back in front, another person behind, cameras 0.5-2.5 m high at any pitch from
+looking up 20 degrees to down 45, rooms whose floor returns no depth, and 40 % of the frames
+without extrinsics (the finder estimates up and the floor as it does for users).
+
 Splits are held out twice: by CMU subject (``VAL_SUBJECTS``; clips without a subject are training
-only) and by body (``VAL_BODIES``). "val" is the goal's setting (OAK-D, 1.5-4 m), "val_upper"
-the close-up setting of the upper-body goal. numpy / open3d only (no torch).
+only) and by body (``VAL_BODIES``). "val" is the goal's setting (OAK-D, 1.5-4 m, no realism),
+"val_upper" the close-up setting of the upper-body goal, "val_real" the held-out clips and bodies
+under the realism above. numpy / open3d only (no torch).
 """
 
 from __future__ import annotations
@@ -38,8 +46,10 @@ CACHE_DIR = assets.cache_dir("skeleton_data")
 VAL_SUBJECTS = frozenset({7, 8, 12, 16})
 #: Body presets never seen in training (chosen to span sizes; see docs/skeleton.md).
 VAL_BODY_COUNT = 4
-SPLITS = ("train", "val", "val_upper")
+SPLITS = ("train", "val", "val_upper", "val_real")
 CAMERAS = ("oak-d", "oak-d-pro", "kinect-v1")
+#: Sensors of realism jobs and how often each is drawn.
+REALISM_CAMERAS = {"oak-d": 0.35, "oak-d-pro": 0.1, "kinect-v1": 0.15, "xtion": 0.2, "kinect-v2": 0.2}
 STORED_POINTS = 512  # points kept per sample; training draws its N from these
 FRAMES_PER_JOB = 8
 
@@ -83,8 +93,8 @@ def split_bodies(presets: list[str], split: str) -> list[str]:
 
 #: Anny phenotype ranges of on-demand training bodies: those the body library spans
 #: (models/bodies/library.json), so that they are people, from a 4-year-old up.
-ANNY_RANGES = {"gender": (0.0, 1.0), "age": (0.16, 1.0), "muscle": (0.2, 1.0), "weight": (0.05, 1.0),
-               "height": (0.15, 0.6), "proportions": (0.35, 0.8)}
+ANNY_RANGES = {"gender": (0.0, 1.0), "age": (0.16, 1.0), "muscle": (0.1, 1.0), "weight": (0.0, 1.0),
+               "height": (0.1, 0.7), "proportions": (0.3, 0.85)}
 #: A drawn phenotype this close to a held-out preset's (in every key) is drawn again: the
 #: held-out bodies stay unseen.
 ANNY_HOLD_OUT_MARGIN = 0.15
@@ -116,13 +126,14 @@ class Job:
     closeup: bool
     seed: int
     split: str = "train"
+    realism: bool = False
 
 
 def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
-              anny: list[str] | None = None, anny_share: float = 0.0) -> list[Job]:
+              anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
-    probability ``anny_share``, else a training preset."""
+    probability ``anny_share``, else a training preset. "val_real" jobs always have realism."""
     from live.body.library import list_presets
 
     if split not in SPLITS:
@@ -132,9 +143,14 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     rng = np.random.default_rng([seed, SPLITS.index(split)])
     n_jobs = -(-int(n_samples * 1.05 + 1) // frames_per_job)
     jobs = []
+    realism = realism or split == "val_real"
+    names, odds = list(REALISM_CAMERAS), list(REALISM_CAMERAS.values())
     for _ in range(n_jobs):
         clip = clips[int(rng.integers(len(clips)))]
-        if split == "train":
+        if realism:
+            camera = names[int(rng.choice(len(names), p=odds))]
+            closeup = bool(rng.random() < 0.15)
+        elif split == "train":
             camera = CAMERAS[int(rng.choice(3, p=[0.7, 0.15, 0.15]))]
             closeup = bool(rng.random() < 0.1)
         else:
@@ -143,7 +159,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split))
+                        int(rng.integers(2**31)), split, realism))
     return jobs
 
 
@@ -216,10 +232,15 @@ def clear_view(room, eye: np.ndarray, margin_m: float = 0.4):
 def random_view(job: Job, rng: np.random.Generator):
     """(VirtualDepthCamera, Room) of a job: a random placement around the performer at the
     origin (1.5-4 m, 0.6-1.9 m high, any yaw; close-ups 0.8-1.4 m aimed at the chest), random
-    sensor noise, a random room cleared between the camera and the performer."""
+    sensor noise, a random room cleared between the camera and the performer. Realism jobs:
+    ``sim.sensor_realism.realistic_view``."""
     from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
     from sim.room import random_room
 
+    if job.realism:
+        from sim.sensor_realism import realistic_view
+
+        return realistic_view(job.camera, job.closeup, job.seed, rng)
     if job.closeup:
         distance, height = rng.uniform(0.8, 1.4), rng.uniform(1.2, 1.7)
         target = (0.0, float(rng.uniform(1.1, 1.4)), 0.0)
@@ -235,6 +256,7 @@ def random_view(job: Job, rng: np.random.Generator):
 
 def run_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
+    from live.core.depth import between_worlds
     from live.core.frames import DepthFrame
     from models.skeleton.preprocess import PersonFinder
     from models.skeleton.preprocess_config import PreprocessConfig
@@ -254,20 +276,34 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     camera, room = random_view(job, rng)
     c2w = camera.camera_to_world
     scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
+    extras = None
+    if job.realism:
+        from sim.sensor_realism import random_extras
+
+        extras = random_extras(rng, body, joints, frames, c2w, job.closeup)
+        room = extras.room(room)
     # Training samples: one pass at the full stride; validation samples: the runtime's
     # coarse-to-fine pass (both draw uniformly from the same person pixels; docs/skeleton.md).
     coarse = PreprocessConfig.coarse_stride if job.split != "train" else None
     finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, coarse_stride=coarse))
     out: dict[str, list] = {k: [] for k in ("points", "joints", "visible", "frame", "distance", "count")}
     for i in frames:
-        depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
-        frame = DepthFrame(t_ns=int(job.seed) * 1000 + int(i), sensor="sim", camera_to_world=c2w,
+        if extras is None:
+            depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
+        else:
+            depth_mm = camera.render(*extras.mesh(scene.vertices(int(i)), body, joints[i], int(i)), room=room)
+        given = c2w if extras is None or not extras.hide_extrinsics else np.eye(4)
+        frame = DepthFrame(t_ns=int(job.seed) * 1000 + int(i), sensor="sim", camera_to_world=given,
                            depth_mm=depth_mm, intrinsics=camera.intrinsics)
         person = finder.find(frame)
         if person is None:
             continue
+        truth = joints[i]
+        if person.camera_to_world is not None and given is not c2w:
+            # the finder solved the frame in its own world (estimated up and floor)
+            truth = between_worlds(truth, c2w, person.camera_to_world)
         inv = np.linalg.inv(person.to_world)
-        local = joints[i] @ inv[:3, :3].T + inv[:3, 3]
+        local = truth @ inv[:3, :3].T + inv[:3, 3]
         # A cluster that is not the performer (clutter picked instead) is not a sample.
         if np.hypot(local[0, 0], local[0, 2]) > 0.6:
             continue
@@ -291,8 +327,13 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------- the dataset
-def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0) -> Path:
+def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
+                realism: bool = False) -> Path:
     fields = {"split": split, "n": n_samples, "seed": seed, "v": 3, "val_subjects": sorted(VAL_SUBJECTS)}
+    if realism or split == "val_real":
+        from sim.sensor_realism import REALISM_VERSION
+
+        fields.update(realism=REALISM_VERSION)
     if anny and anny_share > 0:
         fields.update(anny=anny, anny_share=anny_share)
     key = json.dumps(fields, sort_keys=True)
@@ -300,7 +341,8 @@ def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share
 
 
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
-             progress: bool = False, anny: int = 0, anny_share: float = 0.0) -> dict[str, np.ndarray]:
+             progress: bool = False, anny: int = 0, anny_share: float = 0.0,
+             realism: bool = False) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
@@ -308,14 +350,16 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     closeup (S,) bool, frame (S,) int32, distance (S,) float32 (camera to pelvis, horizontal),
     count (S,) int32 (person points found); S <= n_samples (frames where the finder failed are
     dropped; ``failed`` counts them). anny > 0: training jobs take one of ``anny`` on-demand Anny
-    phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``."""
+    phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``.
+    realism: training jobs as users' sensors see people (module doc; "val_real" always)."""
     anny = anny if split == "train" and anny_share > 0 else 0
-    path = _cache_path(split, n_samples, seed, anny, anny_share)
+    realism = realism and split == "train"
+    path = _cache_path(split, n_samples, seed, anny, anny_share, realism)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     phenotypes = anny_phenotypes(anny, seed) if anny else None
-    jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share)
+    jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism)
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),

@@ -60,7 +60,8 @@ def test_presets():
     assert set(PRESETS) >= {"oak-d", "oak-d-pro", "kinect-v1"}
     for p in PRESETS.values():
         hfov = np.degrees(2 * np.arctan(p.width / 2 / p.fx))
-        assert 55 < hfov < 85 and p.baseline_m == pytest.approx(0.075)
+        assert 55 < hfov < 85 and p.kind in ("stereo", "tof")
+        assert p.baseline_m == pytest.approx(0.075 if p.kind == "stereo" else 0.0)
         assert p.intrinsics.shape == (3, 3) and p.min_range_m < p.max_range_m
     assert (PRESETS["kinect-v1"].width, PRESETS["kinect-v1"].height) == (640, 480)
     assert (OAK.width, OAK.height) == (640, 400)
@@ -302,3 +303,53 @@ def test_between_worlds_moves_points_through_the_camera():
     cam = np.array([[0.1, -0.2, 2.0], [-0.3, 0.4, 3.1]])
     moved = between_worlds(points_to_world(cam, true_c2w), true_c2w, solved_c2w)
     np.testing.assert_allclose(moved, points_to_world(cam, solved_c2w), atol=1e-6)
+
+
+def test_time_of_flight_noise_grows_linearly_with_range_and_has_no_disparity_steps():
+    sds = []
+    for z in (1.5, 3.0):  # a wall z metres in front of the camera, filling the view
+        cam = VirtualDepthCamera("kinect-v2", FRONT, noise=NoiseModel(dropout=0.0, grazing_deg=None), seed=1)
+        depth = cam.render(*wall(3.0 - z, half=4.0), room=False).astype(np.float64)
+        inner = depth[150:270, 180:330]
+        assert (inner > 0).all()
+        sds.append(inner.std())
+        # 1 mm steps: many distinct values, unlike a disparity sensor's few quantised depths
+        assert len(np.unique(inner)) > 20
+    assert sds[1] / sds[0] == pytest.approx(2.0, rel=0.15)
+    assert sds[1] == pytest.approx(1000 * 3.0 * PRESETS["kinect-v2"].tof_sigma_m_per_m, rel=0.15)
+
+
+def test_flying_pixels_lie_between_foreground_and_background():
+    from sim.depth_camera import measure_depth
+
+    z = np.full((60, 80), 3.0, np.float32)
+    z[:, :40] = 1.0  # a vertical depth edge at column 40
+    cos = np.ones_like(z)
+    quiet = NoiseModel(disparity_sigma_px=0.0, quantize=False, edge_jump_px=0.0, occlusion=False,
+                       grazing_deg=None, dropout=0.0)
+    rng = np.random.default_rng(0)
+    plain = measure_depth(z, cos, PRESETS["oak-d"], quiet, rng)
+    assert set(np.unique(plain)) == {1000, 3000}
+    from dataclasses import replace
+
+    flying = measure_depth(z, cos, PRESETS["oak-d"], replace(quiet, flying_pixels=0.5), rng)
+    between = (flying > 1000) & (flying < 3000)
+    assert between[:, 39:41].mean() == pytest.approx(0.5, abs=0.15)  # only beside the edge
+    assert not between[:, :38].any() and not between[:, 42:].any()
+
+
+def test_hole_blobs_take_their_share_in_connected_patches():
+    import cv2
+
+    from sim.depth_camera import measure_depth
+
+    z = np.full((200, 320), 2.0, np.float32)
+    noise = NoiseModel(disparity_sigma_px=0.0, edge_jump_px=0.0, occlusion=False, grazing_deg=None,
+                       dropout=0.0, hole_blobs=0.05)
+    depth = measure_depth(z, np.ones_like(z), PRESETS["oak-d"], noise, np.random.default_rng(3))
+    holes = depth == 0
+    assert holes.mean() == pytest.approx(0.05, abs=0.01)
+    n, _ = cv2.connectedComponents(holes.astype(np.uint8))
+    assert n - 1 < holes.sum() / 20  # blobs of many pixels, not scattered single pixels
+    with pytest.raises(UserInputError):
+        NoiseModel(hole_blobs=1.5)

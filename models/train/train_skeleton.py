@@ -160,13 +160,25 @@ def metrics(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray | None = None)
     return out
 
 
+VAL_SPLITS = ("val", "val_upper", "val_real")
+
+
 def split_results(split: str, pred: np.ndarray, d: dict) -> dict:
-    """The card's metrics of one validation split: {split: ...}, and for "val" also "val_1.5-4m"
-    (the goal's setting: the performer 1.5-4 m from the camera)."""
-    out = {split: metrics(pred, d["joints"].astype(np.float64), d["visible"])}
+    """The card's metrics of one validation split: {split: ...}, for "val" also "val_1.5-4m"
+    (the goal's setting: the performer 1.5-4 m from the camera), and per body and per camera
+    (MPJPE, PA-MPJPE, PCK@10cm) as "<split>_by_body" / "<split>_by_camera"."""
+    gt = d["joints"].astype(np.float64)
+    out = {split: metrics(pred, gt, d["visible"])}
     if split == "val":
         m = (d["distance"] >= 1.5) & (d["distance"] <= 4.0)
-        out["val_1.5-4m"] = metrics(pred[m], d["joints"][m].astype(np.float64), d["visible"][m])
+        out["val_1.5-4m"] = metrics(pred[m], gt[m], d["visible"][m])
+    for key in ("body", "camera"):
+        groups = {}
+        for name in np.unique(d[key]):
+            m = d[key] == name
+            full = metrics(pred[m], gt[m])
+            groups[str(name)] = {k: full[k] for k in ("frames", "mpjpe_mm", "pa_mpjpe_mm", "pck_10cm")}
+        out[f"{split}_by_{key}"] = groups
     return out
 
 
@@ -210,6 +222,10 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                    help="on-demand Anny phenotypes among the training bodies (default 64; 0 with --quick)")
     p.add_argument("--anny-share", type=float, default=0.3,
                    help="share of the training jobs on an Anny phenotype instead of a preset")
+    p.add_argument("--realism", action=argparse.BooleanOptionalAction, default=True,
+                   help="training scenes as users' sensors see people: five sensor models, flying pixels, "
+                        "holes, clothes, occluders, any camera height and pitch, hidden extrinsics "
+                        "(sim.sensor_realism; default on)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--threads", type=int, default=2)
@@ -242,9 +258,10 @@ def main(argv: list[str] | None = None) -> dict:
 
         ensure_built(anny_phenotypes(anny, args.seed), progress)
     data = {split: generate(split, n, seed=args.seed + k, workers=args.workers, progress=progress,
-                            cache=not args.no_cache, anny=anny, anny_share=args.anny_share)
+                            cache=not args.no_cache, anny=anny, anny_share=args.anny_share,
+                            realism=args.realism)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
-                                            ("val_upper", max(n_val // 3, 12))))}
+                                            ("val_upper", max(n_val // 3, 12)), ("val_real", n_val)))}
     data_seconds = round(time.monotonic() - t0, 1)
     from live.body.library import list_presets
     from models.train.mirror_average import apply_mirror_average
@@ -265,7 +282,7 @@ def main(argv: list[str] | None = None) -> dict:
         if init is not None:
             log["init"] = {"file": str(init), "sha256": file_sha256(init)}
         results = {}
-        for split in ("val", "val_upper"):
+        for split in VAL_SPLITS:
             results.update(split_results(split, predict(model, data[split]["points"], recipe.num_points),
                                          data[split]))
         name = "skeleton" if kind == "ours" else "skeleton_baseline"
@@ -290,7 +307,9 @@ def main(argv: list[str] | None = None) -> dict:
                                              "0.15 of a held-out preset in every key "
                                              "(sim.skeleton_data.anny_phenotypes)"},
                       "note": "val: OAK-D, camera 1.5-4 m from the performer, unseen subjects and bodies; "
-                              "val_upper: close-ups (0.8-1.4 m, legs out of frame), same held-out sets"},
+                              "val_upper: close-ups (0.8-1.4 m, legs out of frame), same held-out sets; "
+                              "val_real: the same held-out sets seen as users' sensors see people "
+                              "(sim.sensor_realism), per camera and per body"},
             "metrics": results, "seed": args.seed, "threads": args.threads,
             "command": "python -m models.train.train_skeleton "
                        + shlex.join(argv if argv is not None else sys.argv[1:]),
@@ -298,13 +317,14 @@ def main(argv: list[str] | None = None) -> dict:
         }
         if kind == "ours" and args.mirror_average:  # models.train.mirror_average
             cards[kind]["test_time_mirror"] = apply_mirror_average(onnx_path, results)
-            results = onnx_results(onnx_path, {s: data[s] for s in ("val", "val_upper")}, recipe.num_points)
+            results = onnx_results(onnx_path, {s: data[s] for s in VAL_SPLITS}, recipe.num_points)
             cards[kind]["metrics"] = results
         (out_dir / f"{name}.json").write_text(json.dumps(cards[kind], indent=1) + "\n")
         v = results["val_1.5-4m"]
         print(f"{kind}: val MPJPE {v['mpjpe_mm']} mm, PA-MPJPE {v['pa_mpjpe_mm']} mm, "
               f"PCK@10cm {v['pck_10cm']:.3f}; upper-body close-ups "
-              f"{results['val_upper']['upper_body_mpjpe_mm']} mm "
+              f"{results['val_upper']['upper_body_mpjpe_mm']} mm; val_real MPJPE "
+              f"{results['val_real']['mpjpe_mm']} mm, PCK@10cm {results['val_real']['pck_10cm']:.3f} "
               f"({log['seconds']} s) -> {onnx_path}", flush=True)
     return cards
 
