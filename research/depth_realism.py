@@ -347,14 +347,20 @@ def _scaled(base: str, name: str, width: int, height: int, f: float, **kw) -> Ca
 #: The virtual sensor closest to each real one that the current noise model can express, posed
 #: like the real frames (docs/depth_realism.md): the Xtion is the Kinect v1's PrimeSense design
 #: with its image halved (disparity still resolved at 640 px: one more fractional bit at 320);
-#: the Kinect v2 (time of flight) gets the stereo model at its resolution and focal length.
+#: the Kinect v2 is the time-of-flight preset.
 SCENES: dict[str, SimScene] = {
     "xtion": SimScene(PRESETS["xtion"], (2.6, 3.4), 1.2),
-    "kinect-v2": SimScene(_scaled("kinect-v1", "sim-kinect-v2", 512, 424, 364.85), (2.2, 2.8), 1.8, None),
+    "kinect-v2": SimScene(PRESETS["kinect-v2"], (2.2, 2.8), 1.8, None),
     "kinect-v1": SimScene(PRESETS["kinect-v1"], (0.75, 0.95), 1.45, None, 0.55),
     "oak-d": SimScene(PRESETS["oak-d"], (1.5, 4.0), 1.3, None),
 }
 ROOM_HALF_DEPTH = 4.5
+#: Noise models to compare: the default, and one typical of the training scenes' draws
+#: (sim.sensor_realism.random_noise): mixed returns at edges, holes in blobs, fewer single holes.
+NOISES: dict[str, NoiseModel | None] = {
+    "default": None,
+    "realism": NoiseModel(dropout=0.003, flying_pixels=0.3, hole_blobs=0.01, hole_blob_px=10),
+}
 REAL_FOLDERS = {"xtion": "itop_xtion_2frames", "kinect-v2": "panoptic_kinect2_3people",
                 "kinect-v1": "pcl_kinect1_upper_body"}
 
@@ -562,11 +568,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write every statistic here")
     ap.add_argument("--frames", type=int, default=6, help="synthetic frames per sensor")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--noise", choices=tuple(NOISES), default="default",
+                    help="the virtual sensors' noise: the default model, or with the terms the training "
+                         "scenes add (flying pixels, holes in blobs, fewer single-pixel holes)")
     ap.add_argument("--data", type=Path, default=None, help="the real depth folders (default: shared data)")
     args = ap.parse_args(argv)
     if args.frames < 1:
         ap.error("--frames must be >= 1")
-    pairs = measure(args.frames, args.seed, data=args.data)
+    pairs = measure(args.frames, args.seed, noise=NOISES[args.noise], data=args.data)
     stats = [s for real, sim, _, _ in pairs for s in (real, sim) if s is not None]
     print(markdown_table(stats))
     print(f"wrote {figure(pairs, args.out)}")

@@ -20,6 +20,9 @@ PARENTS: np.ndarray = np.array(
     [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19], dtype=np.int32
 )
 JOINT_INDEX: dict[str, int] = {name: i for i, name in enumerate(JOINT_NAMES)}
+#: The joints a close-up (a seated performer, legs out of view) is scored on: pelvis, spine,
+#: neck, head, collars and arms.
+UPPER_BODY_JOINTS: tuple[int, ...] = (0, 3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21)
 
 #: (parent, child) pairs, one per bone, for drawing and bone-length checks.
 BONES: tuple[tuple[int, int], ...] = tuple((int(p), c) for c, p in enumerate(PARENTS) if p >= 0)

@@ -26,10 +26,11 @@ import numpy as np
 import torch
 
 from live.core import assets
+from live.core.skeleton import UPPER_BODY_JOINTS
 from models.train.skeleton_nets import build, count_parameters, export_onnx
 
 WEIGHTS = assets.weights_dir()
-UPPER_JOINTS = (0, 3, 6, 9, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21)
+UPPER_JOINTS = UPPER_BODY_JOINTS
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,94 @@
+"""Skeleton regressors side by side on the held-out validation sets, per split, sensor and body.
+
+    python -m research.compare_skeleton [--models A.onnx B.onnx ...] [--val 1200] [--json FILE]
+
+The sets are train_skeleton's (seeds 1, 2 and 3 beside training's 0; cached under
+.cache/skeleton_data): "val" (OAK-D 1.5-4 m, the default sensor model), "val_upper" (close-ups)
+and "val_real" (the same unseen clips and bodies as users' sensors see people: five sensors,
+clothes, occluders, any camera height and pitch, 40 % without extrinsics; sim.sensor_realism).
+Without --models: the shipped regressor and the one of git's previous commit of it, if any.
+Prints markdown tables (MPJPE / PA-MPJPE mm, PCK@10cm) for docs/results.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from live.core import assets
+from live.core.metrics import mpjpe, pa_mpjpe, pck
+
+SPLITS = (("val", 1), ("val_upper", 2), ("val_real", 3))
+
+
+def scores(pred: np.ndarray, gt: np.ndarray) -> dict:
+    return {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
+            "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 3)}
+
+
+def predict(model: Path, points: np.ndarray) -> np.ndarray:
+    from models.skeleton.runtime import SkeletonRegressor
+
+    reg = SkeletonRegressor(model)
+    n = reg.num_points
+    return np.concatenate([reg(points[a:a + 256, :n]) for a in range(0, len(points), 256)]).astype(np.float64)
+
+
+def compare(models: list[Path], n_val: int, workers: int = 2) -> dict:
+    from live.core.skeleton import UPPER_BODY_JOINTS
+    from sim.skeleton_data import generate
+
+    out: dict = {}
+    for split, seed in SPLITS:
+        n = max(n_val // 3, 12) if split == "val_upper" else n_val
+        d = generate(split, n, seed=seed, workers=workers, progress=True)
+        gt = d["joints"].astype(np.float64)
+        joints = list(UPPER_BODY_JOINTS) if split == "val_upper" else slice(None)
+        for model in models:
+            pred = predict(model, d["points"])
+            row = {"all": scores(pred[:, joints], gt[:, joints])}
+            for key in ("camera", "body"):
+                for name in np.unique(d[key]):
+                    m = d[key] == name
+                    row[f"{key}:{name}"] = scores(pred[m][:, joints], gt[m][:, joints])
+            out.setdefault(split, {})[model.name if model.name not in out.get(split, {}) else str(model)] = row
+    return out
+
+
+def markdown(results: dict) -> str:
+    lines = []
+    for split, by_model in results.items():
+        names = list(by_model)
+        groups = list(next(iter(by_model.values())))
+        lines.append(f"\n**{split}** (MPJPE / PA-MPJPE mm, PCK@10cm{'; upper body' if split == 'val_upper' else ''})\n")
+        lines.append("| group | frames | " + " | ".join(names) + " |")
+        lines.append("|---|---|" + "---|" * len(names))
+        for g in groups:
+            cells = [f"{by_model[m][g]['mpjpe_mm']} / {by_model[m][g]['pa_mpjpe_mm']} / {by_model[m][g]['pck_10cm']:.3f}"
+                     for m in names]
+            lines.append(f"| {g} | {by_model[names[0]][g]['frames']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m research.compare_skeleton", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", type=Path, nargs="+", default=[assets.weight("skeleton.onnx")])
+    ap.add_argument("--val", type=int, default=1200, help="samples per validation set (the card's: 1200)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    missing = [m for m in args.models if not m.is_file()]
+    if missing:
+        ap.error(f"no model file {missing[0]}")
+    results = compare(args.models, args.val, args.workers)
+    print(markdown(results))
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
