@@ -230,6 +230,7 @@ def run_batch(plan: BatchPlan, executor, *, progress: bool = True, work=run_item
         if bar is not None:
             bar.close()
         manifest.write()
+        storage.remove_empty_scratch_folder(plan.out_dir)
     return manifest
 
 

@@ -151,9 +151,14 @@ def scratch_for(destination: str) -> Path:
 
 def discard_scratch(scratch: Path) -> None:
     shutil.rmtree(scratch, ignore_errors=True)
-    if scratch.parent.name == ".partial":
+
+
+def remove_empty_scratch_folder(out_dir: str) -> None:
+    """The driver's tidying at the end: ``DIR/.partial`` goes when no item is in it (a worker
+    removing it could race another worker making its scratch folder there)."""
+    if not is_url(out_dir):
         try:
-            scratch.parent.rmdir()  # the last item out removes the folder
+            (Path(out_dir) / ".partial").rmdir()
         except OSError:
             pass
 
