@@ -7,7 +7,7 @@ the origin and whatever wall lies opposite the camera is "behind the subject".
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -107,6 +107,21 @@ def random_room(
                          tuple(float(s) for s in size), float(rng.uniform(-np.pi, np.pi))))
     return Room(width=float(width), depth=float(depth), height=float(rng.uniform(2.4, 3.5)),
                 boxes=tuple(boxes))
+
+
+def clear_view(room: Room, eye: np.ndarray, margin_m: float = 0.4) -> Room:
+    """The room grown to hold the camera, without the clutter boxes that stand between the
+    camera at ``eye`` (3,) and the performer at the origin (we train on people in clear view)."""
+    cam = np.asarray(eye, np.float64)[[0, 2]]
+    keep = []
+    for box in room.boxes:
+        c = np.asarray(box.center)[[0, 2]]
+        r = 0.5 * np.hypot(box.size[0], box.size[2]) + margin_m
+        t = np.clip(c @ cam / max(cam @ cam, 1e-9), 0.0, 1.0)  # closest point of the sight line
+        if np.linalg.norm(c - t * cam) > r:
+            keep.append(box)
+    reach = 2.0 * float(np.abs(cam).max()) + 1.5
+    return replace(room, width=max(room.width, reach), depth=max(room.depth, reach), boxes=tuple(keep))
 
 
 def capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, n_lon: int = 16, n_lat: int = 10) -> Mesh:

@@ -46,8 +46,7 @@ def realistic_view(camera: str, closeup: bool, seed: int, rng: np.random.Generat
     the chest, else 1.2-5 m, 0.5-2.5 m high, any yaw, pitched off the performer by up to 17
     degrees within PITCH_RANGE_DEG; a random room cleared between camera and performer."""
     from sim.depth_camera import VirtualDepthCamera, look_at_camera
-    from sim.room import random_room
-    from sim.skeleton_data import clear_view
+    from sim.room import clear_view, random_room
 
     if closeup:
         distance, height, target_y = rng.uniform(0.5, 1.3), rng.uniform(1.0, 1.7), rng.uniform(1.1, 1.4)

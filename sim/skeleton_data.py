@@ -212,30 +212,13 @@ def visible_joints(joints_world: np.ndarray, camera) -> np.ndarray:
     return (cam[:, 2] > p.min_range_m) & (u >= 0) & (u < p.width) & (v >= 0) & (v < p.height)
 
 
-def clear_view(room, eye: np.ndarray, margin_m: float = 0.4):
-    """The room grown to hold the camera, without the clutter boxes that stand between the
-    camera at ``eye`` (3,) and the performer at the origin (we train on people in clear view)."""
-    from dataclasses import replace
-
-    cam = np.asarray(eye, np.float64)[[0, 2]]
-    keep = []
-    for box in room.boxes:
-        c = np.asarray(box.center)[[0, 2]]
-        r = 0.5 * np.hypot(box.size[0], box.size[2]) + margin_m
-        t = np.clip(c @ cam / max(cam @ cam, 1e-9), 0.0, 1.0)  # closest point of the sight line
-        if np.linalg.norm(c - t * cam) > r:
-            keep.append(box)
-    reach = 2.0 * float(np.abs(cam).max()) + 1.5
-    return replace(room, width=max(room.width, reach), depth=max(room.depth, reach), boxes=tuple(keep))
-
-
 def random_view(job: Job, rng: np.random.Generator):
     """(VirtualDepthCamera, Room) of a job: a random placement around the performer at the
     origin (1.5-4 m, 0.6-1.9 m high, any yaw; close-ups 0.8-1.4 m aimed at the chest), random
     sensor noise, a random room cleared between the camera and the performer. Realism jobs:
     ``sim.sensor_realism.realistic_view``."""
     from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
-    from sim.room import random_room
+    from sim.room import clear_view, random_room
 
     if job.realism:
         from sim.sensor_realism import realistic_view
@@ -444,5 +427,5 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
            "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view",
-           "clear_view", "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
+           "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]
