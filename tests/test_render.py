@@ -272,3 +272,81 @@ def test_without_pyav_the_video_is_mpeg4_and_one_line_says_so(tmp_path, monkeypa
     fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
     cap.release()
     assert fourcc.lower() in ("mp4v", "fmp4")  # MPEG-4 Part 2 under either tag
+
+
+def _textured_quad(texture, factor=(1.0, 1.0, 1.0), uv_shift=0.0):
+    """A 2 x 2 m square at z = 3 facing the camera, its uv the unit square (shifted by whole turns:
+    REPEAT wraps them back), and its look."""
+    from live.body.body import AvatarLook
+
+    verts = np.array([[-1.0, -1.0, 3.0], [1.0, -1.0, 3.0], [1.0, 1.0, 3.0], [-1.0, 1.0, 3.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    # Image v runs down, camera y runs down: uv = ((x + 1) / 2, (y + 1) / 2) puts texel (0, 0) top left.
+    uv = (verts[:, :2] + 1.0) / 2.0 + uv_shift
+    look = AvatarLook(uv=uv.astype(np.float32), face_material=np.zeros(2, np.int32),
+                      colours=np.array([factor], np.float32), textures=(texture,),
+                      uv_transforms=np.array([[0.0, 0.0, 1.0, 1.0]], np.float32))
+    return verts, faces, look
+
+
+def test_textures_are_drawn_where_their_uv_puts_them():
+    from live.outputs.raster import shade_lambert, vertex_normals
+    from live.outputs.texture import surface_albedo
+
+    quadrants = np.zeros((2, 2, 3), np.uint8)
+    quadrants[0, 0], quadrants[0, 1], quadrants[1, 0], quadrants[1, 1] = (0, 0, 255), (0, 255, 0), (255, 0, 0), (255, 255, 255)
+    for shift, factor in ((0.0, (1.0, 1.0, 1.0)), (2.0, (1.0, 1.0, 1.0)), (-3.0, (0.5, 1.0, 1.0))):
+        verts, faces, look = _textured_quad(quadrants, factor, shift)
+        r = rasterize(verts, faces, K, SIZE)
+        img = shade_lambert(r, vertex_normals(verts, faces), faces, light_dir=(0.0, 0.0, -1.0), ambient=0.0,
+                            albedo=surface_albedo(r, faces, look, (0.5, 0.5, 0.5)))
+        u0, u1 = np.rint(project(np.array([[-0.5, -0.5, 3.0], [0.5, 0.5, 3.0]]), K)).astype(int)
+        for (x, y), texel in (((u0[0], u0[1]), quadrants[0, 0]), ((u1[0], u0[1]), quadrants[0, 1]),
+                              ((u0[0], u1[1]), quadrants[1, 0]), ((u1[0], u1[1]), quadrants[1, 1])):
+            want = texel * np.asarray(factor)
+            np.testing.assert_allclose(img[y, x], want, atol=2, err_msg=f"shift {shift}, pixel {x, y}")
+
+
+def test_a_material_without_texture_has_its_colour_and_no_material_the_default():
+    from live.body.body import AvatarLook
+    from live.outputs.texture import surface_albedo
+
+    verts, faces, _ = _textured_quad(None)
+    look = AvatarLook(uv=np.zeros((4, 2), np.float32), face_material=np.array([0, -1], np.int32),
+                      colours=np.array([[0.2, 0.4, 0.6]], np.float32), textures=(None,),
+                      uv_transforms=np.array([[0.0, 0.0, 1.0, 1.0]], np.float32))
+    r = rasterize(verts, faces, K, SIZE)
+    albedo = surface_albedo(r, faces, look, (0.9, 0.8, 0.7))
+    tri = r.face.ravel()[np.flatnonzero(r.face.ravel() >= 0)]
+    np.testing.assert_allclose(albedo[tri == 0], np.tile([0.2, 0.4, 0.6], ((tri == 0).sum(), 1)), atol=1e-6)
+    np.testing.assert_allclose(albedo[tri == 1], np.tile([0.9, 0.8, 0.7], ((tri == 1).sum(), 1)), atol=1e-6)
+
+
+def test_a_vrm_avatar_is_drawn_with_its_own_textures():
+    """Godette's palette texture colours her (blue hair, white and blue clothes): many more colours
+    than one shaded tone gives, and her hair's blue where her head is."""
+    from live.body.gltf_avatar import read_gltf_humanoid
+    from live.core.assets import shared_data_dir
+
+    path = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
+    if not path.is_file():
+        pytest.skip("../shared/data/avatars/godette_vrm0.vrm is absent")
+    body = read_gltf_humanoid(path).body
+    root = body.rest_joints[0].astype(np.float64)
+    avatar = AvatarPose(t_ns=0, root=root, rotations=np.tile([1.0, 0, 0, 0], (22, 1)),
+                        joints=body.rest_joints, vertices=body.vertices)
+    result = FrameResult(t_ns=0, avatar=avatar)
+    plain = compose_frame(result, RenderOptions(size=(1280, 400), avatar_faces=body.faces))[:, 641:]
+    textured = compose_frame(result, RenderOptions(size=(1280, 400), avatar_faces=body.faces,
+                                                   avatar_look=body.look))[:, 641:]
+    covered = np.any(plain != (40, 40, 40), axis=2)
+    covered[:70] = False
+    # Hue: one tone shaded has one hue; her textures give several (skin, blue, white, dark).
+    hue = cv2.cvtColor(textured, cv2.COLOR_BGR2HSV)[..., 0][covered & (cv2.cvtColor(textured, cv2.COLOR_BGR2HSV)[..., 1] > 60)]
+    assert len(np.unique(hue // 10)) >= 3
+    # The top of her head is her blue hair (the plain render is one skin tone there).
+    top = np.nonzero(covered.any(axis=1))[0][0]
+    hair = textured[top:top + 12][covered[top:top + 12]].astype(int)
+    assert np.mean(hair[:, 0] > hair[:, 2] + 30) > 0.8
+    skin = plain[top:top + 12][covered[top:top + 12]].astype(int)
+    assert np.mean(skin[:, 0] > skin[:, 2] + 30) < 0.05

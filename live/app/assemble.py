@@ -113,7 +113,8 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if opts.video:
         from live.outputs.render import VideoSink
 
-        sinks.append(VideoSink(opts.video, fps=opts.fps or DEFAULT_FPS, avatar_faces=None if body is None else body.faces))
+        sinks.append(VideoSink(opts.video, fps=opts.fps or DEFAULT_FPS, avatar_faces=None if body is None else body.faces,
+                               avatar_look=None if body is None else body.look))
     return stages, sinks, parts
 
 

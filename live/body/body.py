@@ -27,6 +27,21 @@ class ExtraBone:
 
 
 @dataclass(frozen=True, eq=False)
+class AvatarLook:
+    """How an avatar file colours its mesh (the video draws it): uv (V, 2) texture coordinates of the
+    Body's vertices (glTF's: u right, v down the image); face_material (F,) material of each
+    triangle, -1 for none; colours (M, 3) each material's base colour, BGR in 0..1; textures (M,)
+    each material's base-colour image (H, W, 3) uint8 BGR or None; uv_transforms (M, 4) the uv
+    offset (2) and scale (2) of each material's texture."""
+
+    uv: np.ndarray
+    face_material: np.ndarray
+    colours: np.ndarray
+    textures: tuple[np.ndarray | None, ...]
+    uv_transforms: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class Body:
     """vertices (V,3) float32 T-pose mesh, y up, feet on y=0, facing +z; faces (F,3) int32;
     rest_joints (22,3) float32; weights (V,22) float32 rows summing to 1; parents (22,) int32;
@@ -34,7 +49,8 @@ class Body:
     name for each of the 22 joints (a VRM's humanoid bone nodes), or None (canonical names);
     extra_bones: the file's humanoid bones beyond the 22, parents first (VMC sends them at rest);
     rig: a VRM / glTF avatar's own bones, their rest frames and the joints it has no bone for
-    (live/body/gltf_rig.py: the retarget stage fits poses to it, VMC drives its bones), or None.
+    (live/body/gltf_rig.py: the retarget stage fits poses to it, VMC drives its bones), or None;
+    look: a glTF avatar's materials and textures (the video), or None (one flat colour).
     Arrays of a loaded body are read-only (load_body shares them between callers)."""
 
     vertices: np.ndarray
@@ -47,6 +63,7 @@ class Body:
     joint_names: tuple[str, ...] | None = None
     extra_bones: tuple[ExtraBone, ...] = ()
     rig: AvatarRig | None = None
+    look: AvatarLook | None = None
 
     @property
     def height(self) -> float:

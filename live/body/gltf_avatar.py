@@ -29,16 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from live.body.body import Body, ExtraBone
-from live.body.gltf_file import open_gltf, read_accessor, world_matrices
+from live.body.gltf_file import open_gltf, world_matrices
+from live.body.gltf_mesh import read_look, read_meshes
 from live.body.gltf_rig import build_rig
 from live.core.errors import FormatError, LivecapError
-from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, NUM_JOINTS, PARENTS, default_rest_joints
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, PARENTS, default_rest_joints
 
 log = logging.getLogger(__name__)
 
 GLTF_SUFFIXES = (".vrm", ".glb", ".gltf")
-MAX_VERTICES = 2_000_000
-MAX_FACES = 4_000_000
 #: Arms further than this from horizontal in the rest pose are not a T-pose.
 TPOSE_TOLERANCE_DEG = 25.0
 
@@ -195,78 +194,6 @@ def _skin_sources(doc, world: np.ndarray, parents: np.ndarray, where: str) -> di
         else:
             src[joint] = (by_name[spec[0]], by_name[spec[1]], float(spec[2]))
     return src
-
-
-# ----------------------------------------------------------------------------- meshes and weights
-
-
-def _meshes(doc, buffers, world: np.ndarray, fold: np.ndarray, where: str):
-    """(vertices (V, 3) in the file's scene frame, faces (F, 3), weights (V, 22)) of every mesh at rest."""
-    verts, faces, weights = [], [], []
-    count = 0
-    for ni, node in enumerate(doc.nodes):
-        if node.mesh is None:
-            continue
-        if not 0 <= node.mesh < len(doc.meshes or []):
-            raise FormatError(f"node {ni} points at mesh {node.mesh}, which does not exist", path=where)
-        skin = doc.skins[node.skin] if node.skin is not None and 0 <= node.skin < len(doc.skins or []) else None
-        if skin is not None:
-            sj = np.array([int(j) for j in skin.joints or []], np.int64)
-            if len(sj) == 0 or sj.min() < 0 or sj.max() >= len(doc.nodes):
-                raise FormatError(f"skin {node.skin} names joints that do not exist", path=where)
-            ibm = read_accessor(doc, buffers, skin.inverseBindMatrices, where).reshape(-1, 4, 4).transpose(0, 2, 1) \
-                if skin.inverseBindMatrices is not None else np.tile(np.eye(4), (len(sj), 1, 1))
-            if len(ibm) < len(sj):
-                raise FormatError(f"skin {node.skin} has {len(ibm)} inverse bind matrices for {len(sj)} joints",
-                                  path=where)
-            joint_mats = world[sj] @ ibm[:len(sj)]
-        seen: dict[tuple, tuple[int, int]] = {}  # primitives sharing a vertex set share its vertices
-        for prim in doc.meshes[node.mesh].primitives or []:
-            if (prim.mode if prim.mode is not None else 4) != 4 or prim.attributes.POSITION is None:
-                continue  # points and lines carry no surface
-            a = prim.attributes
-            key = (a.POSITION, a.JOINTS_0, a.WEIGHTS_0)
-            if key not in seen:
-                p = read_accessor(doc, buffers, a.POSITION, where)[:, :3]
-                count += len(p)
-                if count > MAX_VERTICES:
-                    raise FormatError(f"more than the {MAX_VERTICES} vertices an avatar may have", path=where)
-                ph = np.concatenate([p, np.ones((len(p), 1))], axis=1)
-                if skin is not None and a.JOINTS_0 is not None and a.WEIGHTS_0 is not None:
-                    ji = read_accessor(doc, buffers, a.JOINTS_0, where).astype(np.int64)
-                    wi = read_accessor(doc, buffers, a.WEIGHTS_0, where)
-                    if len(ji) != len(p) or len(wi) != len(p) or ji.min(initial=0) < 0 or ji.max(initial=0) >= len(sj):
-                        raise FormatError("JOINTS_0 / WEIGHTS_0 do not match the positions or the skin", path=where)
-                    wi = np.clip(wi, 0.0, None)
-                    mats = np.einsum("vk,vkab->vab", wi / np.maximum(wi.sum(1, keepdims=True), 1e-12),
-                                     joint_mats[ji])
-                    v = np.einsum("vab,vb->va", mats, ph)[:, :3]
-                    w = np.zeros((len(p), NUM_JOINTS))
-                    np.add.at(w, (np.repeat(np.arange(len(p)), ji.shape[1]), fold[sj[ji]].ravel()), wi.ravel())
-                else:
-                    v = (ph @ world[ni].T)[:, :3]
-                    w = np.zeros((len(p), NUM_JOINTS))
-                    w[:, fold[ni]] = 1.0
-                seen[key] = (sum(len(x) for x in verts), len(p))
-                verts.append(v)
-                weights.append(w)
-            offset, n_here = seen[key]
-            idx = read_accessor(doc, buffers, prim.indices, where)[:, 0].astype(np.int64) \
-                if prim.indices is not None else np.arange(n_here)
-            if len(idx) % 3 or (len(idx) and (idx.min() < 0 or idx.max() >= n_here)):
-                raise FormatError("a triangle list that is not whole triangles of its own vertices", path=where)
-            faces.append(idx.reshape(-1, 3) + offset)
-    if not verts:
-        raise FormatError("no triangle meshes", path=where)
-    v, w = np.concatenate(verts), np.concatenate(weights)
-    f = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
-    if len(f) > MAX_FACES:
-        raise FormatError(f"more than the {MAX_FACES} faces an avatar may have", path=where)
-    if len(f) and f.max() >= len(v):
-        raise FormatError("triangles index vertices that do not exist", path=where)
-    empty = w.sum(1) <= 0
-    w[empty, 0] = 1.0  # vertices with no weight at all follow the pelvis
-    return v, f, w / w.sum(1, keepdims=True)
 
 
 # ----------------------------------------------------------------------------- the avatar
@@ -442,7 +369,8 @@ def _read(path: Path, where: str) -> GltfHumanoid:
         while k >= 0 and k not in owners:
             k = int(parents[k])
         fold[n] = owners[k] if k >= 0 else 0
-    verts, faces, weights = _meshes(doc, buffers, world, fold, where)
+    meshes = read_meshes(doc, buffers, world, fold, where)
+    verts, faces, weights = meshes.vertices, meshes.faces, meshes.weights
     joints = np.stack([_point(world, src[n]) if n in src else np.zeros(3) for n in JOINT_NAMES])
     # Into our frame: turned about y so that the left side is +x (facing +z), feet on y = 0.
     to_ours = np.diag([left_sign, 1.0, left_sign, 1.0])
@@ -467,7 +395,8 @@ def _read(path: Path, where: str) -> GltfHumanoid:
                 joint_names=bvh_joint_names(sources, names),
                 extra_bones=_extra_bones(kind, bones, world, parents, to_ours, joints, owners),
                 rig=build_rig(kind, world, parents, to_ours, _real_bones(kind, bones, src, owners),
-                              _extra_bone_names(kind, bones)))
+                              _extra_bone_names(kind, bones)),
+                look=read_look(doc, buffers, path, meshes.uv, meshes.face_material))
     return GltfHumanoid(body=body, kind=kind, bones=bones, node_names=names, joint_sources=sources,
                         turned=left_sign < 0, to_ours=to_ours)
 

@@ -207,12 +207,14 @@ def shade_lambert(
     light_dir: tuple[float, float, float] = (-0.4, -0.6, -1.0),
     ambient: float = 0.25,
     background: tuple[int, int, int] = (40, 40, 40),
+    albedo: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W, 3) uint8 image (RGB order of ``color``) of a rasterised mesh with Lambert shading.
 
     normals_cam (V, 3) vertex normals in the camera frame, interpolated per pixel; light_dir
     points from the surface towards the light, camera frame. Two-sided (|n . l|), so the
-    mesh's winding does not matter.
+    mesh's winding does not matter. albedo: (P, 3) colours in 0..1 of the covered pixels (in
+    ``np.flatnonzero(raster.face >= 0)`` order, e.g. textures), used instead of ``color``.
     """
     h, w = raster.face.shape
     img = np.empty((h * w, 3), dtype=np.uint8)
@@ -228,5 +230,6 @@ def shade_lambert(
     light /= np.linalg.norm(light)
     cos = np.abs(n @ light) / np.sqrt(np.maximum(np.einsum("pc,pc->p", n, n), 1e-12))
     k = ambient + (1.0 - ambient) * cos
-    img[idx] = np.clip(k[:, None] * (np.asarray(color, dtype=np.float32) * 255.0), 0, 255).astype(np.uint8)
+    base = np.asarray(color, dtype=np.float32) if albedo is None else np.asarray(albedo, dtype=np.float32)
+    img[idx] = np.clip(k[:, None] * (base * 255.0), 0, 255).astype(np.uint8)
     return img.reshape(h, w, 3)

@@ -23,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from live.body.body import AvatarLook
 from live.core.errors import UserInputError
 from live.core.frames import FrameResult
 from live.core.skeleton import BONES, JOINT_NAMES
@@ -35,6 +36,7 @@ from live.outputs.raster import (
     vertex_normals,
     world_to_camera,
 )
+from live.outputs.texture import surface_albedo
 
 log = logging.getLogger(__name__)
 
@@ -65,6 +67,7 @@ class RenderOptions:
     avatar_faces: np.ndarray | None = None
     avatar_height: float = 1.9
     avatar_fov_deg: float = 40.0
+    avatar_look: AvatarLook | None = None
 
 
 def bone_mesh(joints: np.ndarray, radius: float = 0.045, sides: int = 8) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +227,9 @@ def avatar_panel(result: FrameResult, opts: RenderOptions, size: tuple[int, int]
         # volume tells (about 1 ms for 20k faces).
         faces = orient_outward(v_cam, opts.avatar_faces)
         raster = rasterize(v_cam, faces, k, size, cull_backfaces=True)
-        panel = shade_lambert(raster, vertex_normals(v_cam, faces), faces, color=_AVATAR_BGR, background=_BACKGROUND)
+        albedo = None if opts.avatar_look is None else surface_albedo(raster, faces, opts.avatar_look, _AVATAR_BGR)
+        panel = shade_lambert(raster, vertex_normals(v_cam, faces), faces, color=_AVATAR_BGR, background=_BACKGROUND,
+                              albedo=albedo)
     else:
         if avatar.joints is not None:
             v, f = bone_mesh(avatar.joints)
@@ -291,6 +296,8 @@ def _check_options(path: str | Path, fps: float, opts: RenderOptions) -> Path:
         f = np.asarray(opts.avatar_faces)
         if f.ndim != 2 or f.shape[1] != 3:
             raise UserInputError(f"avatar faces must be (F, 3), got {f.shape}")
+        if opts.avatar_look is not None and len(opts.avatar_look.face_material) != len(f):
+            raise UserInputError(f"the avatar's look has {len(opts.avatar_look.face_material)} triangles, its mesh {len(f)}")
     if not path.parent.exists():
         raise UserInputError(f"folder {path.parent} does not exist")
     return path
