@@ -408,6 +408,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, default=None, metavar="FILE", help="also write the results as JSON")
     p.add_argument("--workers", type=int, default=2, help="processes generating the sessions (default 2)")
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads of the stage (default 1)")
+    p.add_argument("--model", type=Path, default=None, metavar="ONNX",
+                   help="the skeleton regressor (default: the shipped one)")
     p.add_argument("--label", default=None, help="a name for this run in the output (default: the git revision)")
     args = p.parse_args(argv)
     if args.workers < 1 or args.threads < 1:
@@ -417,10 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     specs, skipped = plan(args.quick)
     generate(specs, args.workers)
     # Warm-up (ONNX sessions, caches): not timed.
-    replay(specs[0], lambda: SkeletonStage(threads=args.threads))
+    replay(specs[0], lambda: SkeletonStage(args.model, threads=args.threads))
     sessions = []
     for i, spec in enumerate(specs):
-        sessions.append(replay(spec, lambda: SkeletonStage(threads=args.threads)))
+        sessions.append(replay(spec, lambda: SkeletonStage(args.model, threads=args.threads)))
         print(f"\rreplayed {i + 1}/{len(specs)}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     rep = report(sessions, skipped)
