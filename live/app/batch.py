@@ -76,7 +76,7 @@ def session_names(sources: list[str]) -> list[str]:
 
 def _depends_on(paths: list) -> tuple[str, ...]:
     """Option values that are files: their content goes into each item's key."""
-    return tuple(str(p) for p in paths if p is not None and Path(str(p)).exists())
+    return tuple(storage.absolute(str(p)) for p in paths if p is not None and Path(str(p)).exists())
 
 
 def _check_locations(out: str, sources: list[str]) -> None:
@@ -93,20 +93,22 @@ def _check_locations(out: str, sources: list[str]) -> None:
 
 def plan_replay(args) -> BatchPlan:
     sources = list(args.sessions) + (read_list(args.list) if args.list is not None else [])
-    sources = list(dict.fromkeys(sources))  # a session named twice is replayed once
+    sources = list(dict.fromkeys(storage.absolute(s) for s in sources))  # one replay of a session named twice
     if not sources:
         raise UserInputError("no sessions: give .mcap files or depth folders, or --list FILE")
     for flag in ("model", "calibration"):
         value = getattr(args, flag)
         if value is not None and not Path(value).is_file():
             raise UserInputError(f"no such file: --{flag} {value}")
+        setattr(args, flag, None if value is None else Path(storage.absolute(value)))
     if args.avatar:
         from live.body.avatar import load_avatar
 
         load_avatar(args.avatar)  # a typo is one line now, not one failure per session
     options = passthrough(args, REPLAY_OPTIONS)
     entries = [(source, name, tuple(options)) for source, name in zip(sources, session_names(sources))]
-    return _plan(REPLAY, args, entries, options, _depends_on([args.model, args.calibration, args.avatar]), cpus_per_task=args.threads or 1)
+    return _plan(REPLAY, args, entries, options, _depends_on([args.model, args.calibration, args.avatar]),
+                 cpus_per_task=args.threads or 1)
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -130,9 +132,9 @@ def _clips(motions: list[str]) -> list[str]:
     for m in motions:
         p = Path(m)
         if p.is_dir():
-            clips += sorted(str(c) for c in p.glob("*.bvh"))
+            clips += sorted(storage.absolute(c) for c in p.glob("*.bvh"))
         elif p.is_file() or storage.is_url(m):
-            clips.append(m)
+            clips.append(storage.absolute(m))
         else:
             raise UserInputError(f"no such motion file or folder: {m}")
     if not clips:
@@ -153,11 +155,12 @@ def plan_synth(args) -> BatchPlan:
     entries = []
     for clip in clips:
         for body in args.body:
-            body_name = Path(body).stem if Path(body).is_file() else body
+            body_file = Path(body).is_file()
+            body_name, body_arg = (Path(body).stem, storage.absolute(body)) if body_file else (body, body)
             for camera in args.camera:
                 for seed in seeds:
                     name = safe_filename(f"{_base_name(clip).removesuffix('.bvh')}__{body_name}__{camera}__s{seed}")
-                    entries.append((clip, name, ("--body", body, "--camera", camera, "--seed", str(seed), *shared)))
+                    entries.append((clip, name, ("--body", body_arg, "--camera", camera, "--seed", str(seed), *shared)))
     if len({name for _, name, _ in entries}) < len(entries):
         raise UserInputError("two items would write the same file (clips or bodies with the same name): "
                              "give them different names")
@@ -167,6 +170,7 @@ def plan_synth(args) -> BatchPlan:
 def _plan(command: str, args, entries: list[tuple[str, str, tuple[str, ...]]], options: list[str],
           depends_on: tuple[str, ...], cpus_per_task: float = 1.0) -> BatchPlan:
     """The plan of a batch: one item per (source, name, command options) entry in this shard."""
+    args.out = storage.absolute(args.out)
     _check_locations(args.out, [source for source, _, _ in entries])
     shard = parse_shard(args.shard)
     location = storage.join(args.out, manifest_name(shard))

@@ -5,6 +5,7 @@ item's command line (``passthrough``)."""
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 from live.app import arguments as arg
@@ -23,6 +24,9 @@ REPLAY_OPTIONS: tuple[tuple[str, dict], ...] = (
     ("--calibration", {"type": Path, "help": "suit calibration (from `livecap calibrate`)"}),
     ("--bvh-names", {"choices": ["avatar", "canonical"], "help": "avatar.bvh's joint names (default avatar)"}),
 )
+
+#: Options that may name a file.
+FILE_OPTIONS = frozenset({"--avatar", "--model", "--calibration"})
 
 #: The same for the synth options every item of a synthetic data set shares.
 SYNTH_OPTIONS: tuple[tuple[str, dict], ...] = (
@@ -56,7 +60,9 @@ def passthrough(args: argparse.Namespace, table: tuple[tuple[str, dict], ...]) -
         if spec.get("action") == "store_true":
             out += [flag] if value else []
         elif value is not None:
-            out += [flag, str(value)]
+            # A file is given by its absolute path: workers may run in another folder.
+            text = os.path.abspath(value) if flag in FILE_OPTIONS and Path(value).is_file() else str(value)
+            out += [flag, text]
     return out
 
 

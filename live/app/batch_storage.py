@@ -40,6 +40,12 @@ def check_protocol(url: str) -> None:
     _filesystem(url)
 
 
+def absolute(location: str | Path) -> str:
+    """A local path made absolute (workers may run in another folder; symlinks are kept, their
+    names name the outputs); a URL as it is."""
+    return str(location) if is_url(location) else os.path.abspath(location)
+
+
 def join(base: str, *parts: str) -> str:
     """``base/part/...`` for a local path or a URL."""
     if is_url(base):
