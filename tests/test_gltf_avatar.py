@@ -247,22 +247,55 @@ def test_broken_buffer(tmp_path, capsys):
     assert "bytes" in line
 
 
-@needs_godette
-def test_mesh_only_glb_keeps_the_skinning_field_path(tmp_path):
-    """A .glb with neither a VRM humanoid nor a skin is a plain T-pose mesh: skeleton fitted, field weights."""
-    from live.body.avatar import load_avatar
-    from live.body.skinning_field import DEFAULT_MODEL
-
-    if not DEFAULT_MODEL.is_file():
-        pytest.skip("no committed skinning_field.onnx")
-    doc, blob = _glb_chunks(GODETTE)
-    del doc["extensions"]["VRM"]
-    doc["extensionsUsed"].remove("VRM")
+def _mesh_only(tmp_path: Path, source: Path, name: str) -> Path:
+    doc, blob = _glb_chunks(source)
+    for key in ("VRM", "VRMC_vrm"):
+        doc["extensions"].pop(key, None)
+        if key in doc.get("extensionsUsed", []):
+            doc["extensionsUsed"].remove(key)
     doc.pop("skins")
     for node in doc["nodes"]:
         node.pop("skin", None)
-    body = load_avatar(_write_glb(tmp_path / "mesh.glb", doc, blob))
-    assert body.rest_joints.shape == (22, 3) and np.allclose(body.weights.sum(1), 1.0, atol=1e-4)
+    return _write_glb(tmp_path / name, doc, blob)
+
+
+@needs_godette
+def test_mesh_only_glb_keeps_the_skinning_field_path_and_faces_plus_z(tmp_path, capsys):
+    """A .glb with neither a VRM humanoid nor a skin is a plain T-pose mesh: skeleton fitted, field
+    weights, its materials kept. Godette's mesh faces -z (VRM 0.x): her feet say so and she is
+    turned half about y, exactly as her rigged file is (not mirrored: her left hand at +x); her VRM
+    1.0 conversion's mesh faces +z and is kept."""
+    from live.body.avatar import facing_measure, load_avatar
+    from live.body.skinning_field import DEFAULT_MODEL
+    from research.vrm1_from_vrm0 import convert
+
+    if not DEFAULT_MODEL.is_file():
+        pytest.skip("no committed skinning_field.onnx")
+    rigged = read_gltf_humanoid(GODETTE).body
+    left_hand = rigged.weights[:, JOINT_INDEX["left_wrist"]] > 0.5
+    vrm1 = tmp_path / "vrm1.vrm"
+    convert(GODETTE, vrm1)
+    for source, name in ((GODETTE, "minus_z.glb"), (vrm1, "plus_z.glb")):
+        body = load_avatar(_mesh_only(tmp_path, source, name))
+        assert body.rest_joints.shape == (22, 3) and np.allclose(body.weights.sum(1), 1.0, atol=1e-4)
+        assert facing_measure(body.vertices) > 0.03
+        # The same vertices as the rigged reading's, up to where the figure is centred.
+        shift = (body.vertices - rigged.vertices).mean(0)
+        np.testing.assert_allclose(body.vertices, rigged.vertices + shift, atol=1e-4, err_msg=name)
+        assert body.vertices[left_hand, 0].min() > 0.3
+        assert body.look is not None and len(body.look.face_material) == len(body.faces)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_figure_without_feet_says_it_takes_plus_z(capsys):
+    from live.body.avatar import face_plus_z, facing_measure
+
+    angle, height = np.meshgrid(np.linspace(0, 2 * np.pi, 48, endpoint=False), np.linspace(0, 1.7, 120))
+    column = np.stack([0.2 * np.cos(angle), height, 0.2 * np.sin(angle)], -1).reshape(-1, 3)  # a round post
+    assert abs(facing_measure(column)) < 0.01
+    np.testing.assert_array_equal(face_plus_z(column, "column.ply"), column)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "column.ply" in err[0] and "+z" in err[0]
 
 
 @needs_godette

@@ -3,9 +3,10 @@
 A preset name, a body ``.npz`` or an ``anny:...`` phenotype goes to live.body.library.load_body. A VRM,
 or a glTF / GLB with a skin, brings its own skeleton and skin (live/body/gltf_avatar.py). Any other
 file that open3d reads (OBJ, PLY, glTF/GLB, OFF, STL as meshes; PLY/PCD/XYZ/PTS as point clouds)
-is taken as a humanoid in the canonical T-pose (facing +z, y up, arms along x), in metres (a figure
-taller than 3 units is read as centimetres, taller than 300 as millimetres). It is put on the floor
-(feet at y = 0) and centred, and gets:
+is taken as a humanoid in the T-pose (y up, arms along x), in metres (a figure taller than 3 units
+is read as centimetres, taller than 300 as millimetres). Which way it faces, +z or -z, is told by
+its feet (``facing_sign``: toes reach further ahead of the shins than heels behind them); a figure
+facing -z is turned half about y. It is put on the floor (feet at y = 0) and centred, and gets:
 
 - a T-pose skeleton by fitting the canonical skeleton template to the figure (``fit_skeleton``):
   each joint keeps its position relative to the figure's extent, averaged over the body library
@@ -19,12 +20,15 @@ taller than 3 units is read as centimetres, taller than 300 as millimetres). It 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import logging
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from live.body.gltf_avatar import gltf_is_rigged, is_gltf_file, load_gltf_avatar
+from live.body.gltf_avatar import gltf_is_rigged, is_gltf_file, load_gltf_avatar, read_gltf_mesh
 from live.core.errors import FormatError, UserInputError
 from live.core.skeleton import JOINT_INDEX, NUM_JOINTS, PARENTS
 
@@ -33,6 +37,11 @@ CLOUD_SUFFIXES = (".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 _ARM = tuple(JOINT_INDEX[n] for n in ("left_collar", "left_shoulder", "left_elbow", "left_wrist",
                                       "right_collar", "right_shoulder", "right_elbow", "right_wrist"))
 _LEGS = tuple(JOINT_INDEX[n] for n in ("left_knee", "left_ankle", "right_knee", "right_ankle"))
+#: |facing_measure| below this (in heights) does not tell the facing: measured +0.071 (a stylised
+#: VRM, Godette) and +0.085 to +0.105 (the 21 library bodies) on figures facing +z.
+FACING_MIN = 0.035
+
+log = logging.getLogger(__name__)
 
 
 def is_geometry_file(spec: str | Path) -> bool:
@@ -148,6 +157,36 @@ def read_geometry(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return verts, faces
 
 
+def facing_measure(vertices: np.ndarray) -> float:
+    """How far (in heights) the feet reach ahead (+z) of the shins more than behind them: the 98th
+    and 2nd z percentiles of the vertices in the lowest 4 % of the figure against the median z of
+    those between 12 % and 22 % (the shins). Positive for a figure facing +z (toes ahead), negative facing -z. Needs y up."""
+    v = np.asarray(vertices, np.float64)
+    y0, h = float(v[:, 1].min()), float(np.ptp(v[:, 1]))
+    if not h > 0:
+        return 0.0
+    feet = v[v[:, 1] < y0 + 0.04 * h, 2]
+    shins = v[(v[:, 1] > y0 + 0.12 * h) & (v[:, 1] < y0 + 0.22 * h), 2]
+    if len(feet) < 3 or len(shins) < 3:
+        return 0.0
+    c = float(np.median(shins))
+    ahead, behind = np.percentile(feet, [98.0, 2.0])  # percentiles: a stray vertex does not decide
+    return float((ahead - c) - (c - behind)) / h
+
+
+def face_plus_z(vertices: np.ndarray, where: str = "avatar") -> np.ndarray:
+    """The figure turned half about y when its feet say it faces -z (``facing_measure``); when they do
+    not tell, one stderr line says +z is assumed (glTF's convention, and the canonical T-pose's)."""
+    m = facing_measure(vertices)
+    if m <= -FACING_MIN:
+        log.info("%s faces -z (its toes point that way): turned to face +z", where)
+        return np.asarray(vertices, np.float64) * np.array([-1.0, 1.0, -1.0])
+    if m < FACING_MIN:
+        print(f"livecap: {where}: its feet do not tell which way it faces; taking +z as its front",
+              file=sys.stderr, flush=True)
+    return np.asarray(vertices, np.float64)
+
+
 def normalise_figure(vertices: np.ndarray) -> np.ndarray:
     """Vertices in metres, feet on y = 0, x centred on the bounding box, z on the hip band's centre."""
     v = np.asarray(vertices, np.float64).copy()
@@ -249,11 +288,19 @@ def load_avatar(spec: str | Path, *, field_model: str | Path | None = None):
     if is_gltf_file(spec) and gltf_is_rigged(spec):
         # A VRM, or a glTF with a skin: its own skeleton, weights and facing (live/body/gltf_avatar.py).
         return load_gltf_avatar(spec)
+    if is_gltf_file(spec):
+        # A glTF mesh without a skeleton: read by pygltflib with its nodes and materials.
+        verts, faces, look = read_gltf_mesh(spec)
+        body = avatar_from_points(face_plus_z(verts, str(spec)), faces, name=Path(str(spec)).stem,
+                                  field_model=field_model)
+        return dataclasses.replace(body, look=look)
     if is_geometry_file(spec):
         verts, faces = read_geometry(spec)
-        return avatar_from_points(verts, faces, name=Path(str(spec)).stem, field_model=field_model)
+        return avatar_from_points(face_plus_z(verts, str(spec)), faces, name=Path(str(spec)).stem,
+                                  field_model=field_model)
     return load_body(spec)
 
 
-__all__ = ["load_avatar", "avatar_from_points", "fit_skeleton", "normalise_figure", "read_geometry",
+__all__ = ["load_avatar", "avatar_from_points", "face_plus_z", "facing_measure", "fit_skeleton", "normalise_figure",
+           "read_geometry",
            "skeleton_template", "is_geometry_file", "NUM_JOINTS"]

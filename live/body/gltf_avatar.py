@@ -417,6 +417,23 @@ def load_gltf_avatar(path: str | Path) -> Body:
     return read_gltf_humanoid(path).body
 
 
+def read_gltf_mesh(path: str | Path):
+    """(vertices (V, 3) in the file's scene frame, faces (F, 3), AvatarLook) of a glTF without a
+    skeleton: every triangle primitive placed by its node at rest (live/body/avatar.py fits a
+    skeleton to it)."""
+    path = Path(path)
+    try:
+        with np.errstate(all="ignore"):
+            doc, buffers = open_gltf(path)
+            world, _ = world_matrices(doc, str(path))
+            meshes = read_meshes(doc, buffers, world, None, str(path))
+            return meshes.vertices, meshes.faces, read_look(doc, buffers, path, meshes.uv, meshes.face_material)
+    except LivecapError:
+        raise
+    except _MALFORMED as e:
+        raise FormatError(f"a malformed glTF ({type(e).__name__}: {e})", path=str(path)) from None
+
+
 def gltf_is_rigged(path: str | Path) -> bool:
     """True for a file read by ``load_gltf_avatar``: every ``.vrm``, and a ``.glb`` / ``.gltf`` with a
     VRM extension or a skin. A glTF mesh without either is a plain T-pose mesh (live/body/avatar.py
