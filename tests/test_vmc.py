@@ -462,3 +462,30 @@ def _node_world(path, node):
         p += doc["nodes"][k].get("translation", [0, 0, 0])
         k = parent.get(k)
     return p
+
+
+def test_a_file_without_upper_chest_gets_its_chest_as_chest():
+    """Godette has no upperChest: her chest bone is our spine3 (where the neck and arms branch off). With
+    her rig, spine3's rotation goes out as Chest (once), nothing as UpperChest, spine2 (a point between
+    her spine and chest, no bone of hers) as nothing; the default avatar keeps the 22 canonical bones."""
+    from live.body.gltf_avatar import read_gltf_humanoid
+    from live.core.assets import shared_data_dir
+    from live.core.skeleton import JOINT_INDEX
+
+    path = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
+    if not path.is_file():
+        pytest.skip("../shared/data/avatars/godette_vrm0.vrm is absent")
+    body = read_gltf_humanoid(path).body
+    rot = np.tile([1.0, 0.0, 0.0, 0.0], (22, 1))
+    turn = quat_from_axis_angle(np.array([0.3, 0.2, -0.1]))
+    rot[JOINT_INDEX["spine3"]] = turn
+    msgs = vmc_messages(body.rest_joints[0], rot, body.rest_joints, 0.0, rig=body.rig)
+    bones = [args[0] for addr, args in msgs if addr == "/VMC/Ext/Bone/Pos"]
+    assert bones.count("Chest") == 1 and "UpperChest" not in bones and len(bones) == len(set(bones))
+    sent = {args[0]: np.array(args[4:8]) for addr, args in msgs if addr == "/VMC/Ext/Bone/Pos"}
+    # Her bones are normalised (identity rest rotations): the chest's localRotation is spine3's own.
+    np.testing.assert_allclose(sent["Chest"], quat_to_unity(turn), atol=1e-6)
+    np.testing.assert_allclose(sent["Spine"], [0, 0, 0, 1], atol=1e-9)
+    default = [args[0] for addr, args in vmc_messages(np.zeros(3), rot, body.rest_joints, 0.0)
+               if addr == "/VMC/Ext/Bone/Pos"]
+    assert default == list(UNITY_BONES)
