@@ -22,7 +22,9 @@ rotations convert joint by joint.
 
 Bones. The canonical parents match Unity's humanoid hierarchy one to one, and a normalised
 humanoid (VRM, VSeeFace, Warudo, VirtualMotionCapture) has identity local rotations in its
-T-pose, as ours do, so a canonical local rotation is directly the bone's localRotation.
+T-pose, as ours do, so a canonical local rotation is directly the bone's localRotation. A VRM /
+glTF avatar whose bones have rest rotations of their own gets its bones' own values instead
+(live/body/gltf_rig.py, live/outputs/vmc.py ``rig_bone_messages``).
 """
 
 from __future__ import annotations

@@ -9,10 +9,14 @@ VMC (https://protocol.vmc.info) is OSC over UDP. Every frame becomes one OSC bun
     /VMC/Ext/Bone/Pos  s bone,   f px, py, pz, f qx, qy, qz, qw      (x 22, canonical order)
     /VMC/Ext/Bone/Pos  s bone,   f px, py, pz, f 0, 0, 0, 1          (each extra bone, at rest)
 
-Extra bones: the humanoid bones a VRM / glTF avatar maps beyond the 22 (fingers, eyes, jaw; the
-Body's ``extra_bones``) are sent at rest, identity localRotation and the file's own rest offset
-as localPosition, so a receiver that applies every bone it is sent gets a complete, consistent
-pose (Godette's 24 finger bones make a frame 3,884 bytes instead of 1,844: ``--vmc-mtu`` splits it).
+A VRM / glTF avatar's rig (the Body's ``rig``, live/body/gltf_rig.py) replaces the 22 canonical
+bones by the file's own: each bone it has, under its own HumanBodyBones name (a file without an
+upperChest sends its chest as Chest), with the local position and rotation of its own node for its
+own rest frame (identity at rest for a normalised VRM 0.x, its rest rotation for a VRM 1.0 or a
+rolled bone), then its fingers, eyes and jaw at rest, so a receiver applying every bone it is sent
+to the file's own nodes rebuilds the avatar's pose. Without a rig, ``extra_bones`` are sent at
+rest after the 22, identity localRotation and the file's rest offset as localPosition.
+(Godette's frame, 21 body bones and 24 finger bones, is 3,808 bytes: ``--vmc-mtu`` splits it.)
 
 With ``max_bundle_bytes`` (``--vmc-mtu``) a frame's messages are split, in order, over as many
 bundles as keep each datagram within that size (a 22-bone frame is ~1,850 bytes: over Ethernet's
