@@ -101,6 +101,16 @@ def _world(doc: dict, locals_: list[np.ndarray]) -> list[np.ndarray]:
     return [get(i) for i in range(len(locals_))]
 
 
+def _sparse(src: Path, out: Path) -> Path:
+    """A VRM 0.x copy mapping no neck, shoulders or toes (optional in VRM): those nodes stay in the
+    tree as plain nodes, the joints become points between bones."""
+    doc, blob = _glb_chunks(src)
+    drop = {"neck", "leftShoulder", "rightShoulder", "leftToes", "rightToes"}
+    humanoid = doc["extensions"]["VRM"]["humanoid"]
+    humanoid["humanBones"] = [b for b in humanoid["humanBones"] if b["bone"] not in drop]
+    return _write_glb(out, doc, blob)
+
+
 def _rolled(src: Path, out: Path, seed: int = 0) -> Path:
     """A copy whose every node has its rest frame turned by a random rotation (its children's
     translations and the skin's inverse bind matrices compensated): the same mesh and skeleton,
@@ -225,7 +235,8 @@ def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("agreement")
     vrm1 = tmp / "godette_vrm1.vrm"
     convert(GODETTE, vrm1)
-    files = {"vrm0": GODETTE, "vrm1": vrm1, "rolled": _rolled(vrm1, tmp / "godette_rolled.vrm")}
+    files = {"vrm0": GODETTE, "vrm1": vrm1, "rolled": _rolled(vrm1, tmp / "godette_rolled.vrm"),
+             "sparse": _sparse(GODETTE, tmp / "godette_sparse.vrm")}
     out = {}
     for kind, path in files.items():
         rx = _Receiver()
@@ -256,7 +267,12 @@ _BODY_BONES = {"Hips", "Spine", "Chest", "UpperChest", "Neck", "Head"} | {
     for b in ("Shoulder", "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot", "Toes")}
 
 
-@pytest.mark.parametrize("kind", ["vrm0", "vrm1", "rolled"])
+#: Per file, the canonical joints that are none of its bones (points between bones).
+_VIRTUAL = {"vrm0": {"spine2"}, "vrm1": {"spine2"}, "rolled": {"spine2"},
+            "sparse": {"spine2", "neck", "left_collar", "right_collar", "left_foot", "right_foot"}}
+
+
+@pytest.mark.parametrize("kind", ["vrm0", "vrm1", "rolled", "sparse"])
 def test_vmc_receiver_rebuilds_avatar_npz_on_the_avatars_own_bones(runs, kind):
     path, out, frames = runs[kind]
     avatar = np.load(out / "avatar.npz")
@@ -265,13 +281,13 @@ def test_vmc_receiver_rebuilds_avatar_npz_on_the_avatars_own_bones(runs, kind):
     h = read_gltf_humanoid(path)
     # Godette has no upperChest: her chest bone is our spine3 and goes out as Chest, once.
     names = set(frames[0])
-    assert "Chest" in names and "UpperChest" not in names and len(names) == 21 + 24
+    assert "Chest" in names and "UpperChest" not in names and len(names) == 22 - len(_VIRTUAL[kind]) + 24
     rebuilt, _ = _receiver_joints(path, frames)
     # Unity (the file's nodes, mirrored as UniVRM does) -> ours: the x mirror, then the lift to the floor.
     lift = h.to_ours[:3, 3]
     worst = 0.0
     real = _real_joints(path)
-    assert len(real) == 21 and JOINT_INDEX["spine2"] not in real
+    assert {JOINT_NAMES[j] for j in range(22) if j not in real} == _VIRTUAL[kind]
     for j, bone in real.items():
         got = rebuilt[bone] * np.array([-1.0, 1.0, 1.0]) + lift
         err = np.linalg.norm(got - joints[:, j], axis=1).max()
@@ -280,7 +296,7 @@ def test_vmc_receiver_rebuilds_avatar_npz_on_the_avatars_own_bones(runs, kind):
     print(f"{kind}: VMC receiver vs avatar.npz, worst joint {worst * 1e3:.4f} mm")
 
 
-@pytest.mark.parametrize("kind", ["vrm0", "vrm1", "rolled"])
+@pytest.mark.parametrize("kind", ["vrm0", "vrm1", "rolled", "sparse"])
 def test_bvh_forward_kinematics_is_avatar_npz(runs, kind):
     from live.io.bvh_kinematics import bvh_forward_kinematics
     from live.io.bvh_reader import read_bvh
