@@ -9,7 +9,10 @@ performer, and the true world joints. The regressor is not run here: the tempora
 the current skeleton model on the stored samples, so the data outlives any one model.
 
 Splits and held-out subjects / bodies are those of ``sim.skeleton_data``; "val" is the goal's
-setting (OAK-D, 1.5-4 m). Jobs are seeded, so the result does not depend on the worker count.
+setting (OAK-D, 1.5-4 m). With ``realism`` (training only), sequences are seen as users' sensors
+see people (``sim.sensor_realism``); a sequence without extrinsics stores each frame's truth in
+the world the finder estimated for it. Jobs are seeded, so the result does not depend on the
+worker count.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ def _motion_at_fps(file: str):
 def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's consecutive frames; arrays with a leading frame axis (F = SEQUENCE_FRAMES,
     frames past the end of a short clip are marked not found)."""
+    from live.core.depth import between_worlds
     from live.core.frames import DepthFrame
     from models.skeleton.preprocess import PersonFinder
     from models.skeleton.preprocess_config import PreprocessConfig
@@ -67,7 +71,15 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     shift = np.array([centre[0], 0.0, centre[2]])
     root, joints = root - shift, joints - shift
     camera, room = random_view(job, rng)
+    c2w = camera.camera_to_world
     scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
+    extras = None
+    if job.realism:
+        from sim.sensor_realism import random_extras
+
+        extras = random_extras(rng, body, joints, window, c2w, job.closeup)
+        room = extras.room(room)
+    given = np.eye(4) if extras is not None and extras.hide_extrinsics else c2w
     finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS))  # the runtime's settings
     f = SEQUENCE_FRAMES
     out = {"points": np.zeros((f, STORED_POINTS, 3), np.float32),
@@ -76,10 +88,16 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
            "t_ns": np.zeros(f, np.int64)}
     for k, i in enumerate(window):
         t_ns = 1_000_000_000 + frame_offset_ns(k, SEQUENCE_FPS)
-        depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
-        person = finder.find(DepthFrame(t_ns=t_ns, sensor="sim", camera_to_world=camera.camera_to_world,
+        if extras is None:
+            depth_mm = camera.render(scene.vertices(int(i)), body.faces, room=room)
+        else:
+            depth_mm = camera.render(*extras.mesh(scene.vertices(int(i)), body, joints[i], int(i)), room=room)
+        person = finder.find(DepthFrame(t_ns=t_ns, sensor="sim", camera_to_world=given,
                                         depth_mm=depth_mm, intrinsics=camera.intrinsics))
-        out["joints"][k] = joints[i]
+        truth = joints[i]
+        if person is not None and given is not c2w and person.camera_to_world is not None:
+            truth = between_worlds(truth, c2w, person.camera_to_world)  # the finder's own world
+        out["joints"][k] = truth
         out["visible"][k] = visible_joints(joints[i], camera)
         out["t_ns"][k] = t_ns
         if person is not None:
@@ -89,9 +107,14 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     return out
 
 
-def _cache_path(split: str, n_sequences: int, seed: int, anny: int = 0, anny_share: float = 0.0):
+def _cache_path(split: str, n_sequences: int, seed: int, anny: int = 0, anny_share: float = 0.0,
+                realism: bool = False):
     fields = {"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
               "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}
+    if realism:
+        from sim.sensor_realism import REALISM_VERSION
+
+        fields.update(realism=REALISM_VERSION)
     if anny and anny_share > 0:  # without them, the key (and the caches) of the presets-only data
         fields.update(anny=anny, anny_share=anny_share)
     key = json.dumps(fields, sort_keys=True)
@@ -103,35 +126,38 @@ def _load(path) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, anny_share: float
-                           ) -> dict[str, np.ndarray] | None:
+def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, anny_share: float,
+                           realism: bool = False) -> dict[str, np.ndarray] | None:
     """The cached sequences of the same split, seed and bodies with the most sequences below n, if any."""
-    best = max((n for n in range(1, n_sequences) if _cache_path(split, n, seed, anny, anny_share).is_file()),
-               default=None)
-    return None if best is None else _load(_cache_path(split, best, seed, anny, anny_share))
+    best = max((n for n in range(1, n_sequences)
+                if _cache_path(split, n, seed, anny, anny_share, realism).is_file()), default=None)
+    return None if best is None else _load(_cache_path(split, best, seed, anny, anny_share, realism))
 
 
 def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
-                       progress: bool = False, anny: int = 0, anny_share: float = 0.0) -> dict[str, np.ndarray]:
+                       progress: bool = False, anny: int = 0, anny_share: float = 0.0,
+                       realism: bool = False) -> dict[str, np.ndarray]:
     """The sequences of a split (cached under .cache/skeleton_data). anny > 0: training
     sequences take one of ``anny`` on-demand Anny phenotypes (the per-frame data's,
     ``sim.skeleton_data.anny_phenotypes``; the train extra) with probability ``anny_share``.
 
     Returns points (S, F, 512, 3) float32 person frame, to_world (S, F, 4, 4), found (S, F) bool,
     joints (S, F, 22, 3) float32 world, visible (S, F, 22) bool, t_ns (S, F) int64, and per
-    sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool."""
+    sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool. realism:
+    training sequences as users' sensors see people (module doc)."""
     if split not in ("train", "val"):
         raise UserInputError(f"sequence data has splits train and val, not {split!r}")
     anny = anny if split == "train" and anny_share > 0 else 0
-    path = _cache_path(split, n_sequences, seed, anny, anny_share)
+    realism = realism and split == "train"
+    path = _cache_path(split, n_sequences, seed, anny, anny_share, realism)
     if cache and path.is_file():
         return _load(path)
     # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n. Its plan
     # for n jobs starts with its plan for fewer, so a cached smaller set is this one's prefix.
     phenotypes = anny_phenotypes(anny, seed) if anny else None  # the per-frame data's, same seed
     jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1, anny=phenotypes,
-                     anny_share=anny_share)[:n_sequences]
-    prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share) if cache else None
+                     anny_share=anny_share, realism=realism)[:n_sequences]
+    prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share, realism) if cache else None
     done = len(prefix["found"]) if prefix else 0
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs[done:] if j.body.startswith("anny:")}), progress)

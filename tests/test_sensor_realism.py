@@ -90,3 +90,18 @@ def test_realism_jobs_use_every_sensor_and_give_samples(monkeypatch):
     centre = np.median(pts[:, :, [0, 2]], axis=1)
     assert np.linalg.norm(joints[:, 0, [0, 2]] - centre, axis=1).max() < 0.3
     assert (joints[:, JOINT_INDEX["head"], 1] > joints[:, 0, 1] + 0.3).all()
+
+
+def test_realism_sequences_keep_each_frames_truth_in_the_finders_world(monkeypatch):
+    from sim.skeleton_sequences import SEQUENCE_FRAMES, run_sequence_job
+
+    monkeypatch.setattr(sensor_realism, "HIDE_EXTRINSICS_SHARE", 1.0)
+    job = plan_jobs("train", 5, 3, frames_per_job=1, realism=True)[0]
+    out = run_sequence_job(job)
+    found = out["found"]
+    assert found.sum() >= SEQUENCE_FRAMES // 2
+    # the truth expressed through each found frame's person frame stands upright over its origin
+    inv = np.linalg.inv(out["to_world"][found])
+    local = np.einsum("fij,fkj->fki", inv[:, :3, :3], out["joints"][found]) + inv[:, None, :3, 3]
+    assert (local[:, JOINT_INDEX["head"], 1] > local[:, 0, 1] + 0.3).all()
+    assert np.abs(local[:, 0, [0, 2]]).max() < 0.6

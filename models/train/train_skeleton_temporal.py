@@ -350,6 +350,8 @@ def main(argv: list[str] | None = None) -> dict:
                    help="on-demand Anny phenotypes of those sequences (the per-frame data's; default 64)")
     p.add_argument("--anny-share", type=float, default=0.7,
                    help="share of those sequences on an Anny body (default 0.7: 30%% of 7,000)")
+    p.add_argument("--realism", action=argparse.BooleanOptionalAction, default=True,
+                   help="training sequences as users' sensors see people (sim.sensor_realism; default on)")
     p.add_argument("--regressor", type=Path, default=DEFAULT_MODEL)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
@@ -366,7 +368,8 @@ def main(argv: list[str] | None = None) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()
-    data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress),
+    data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress,
+                                        realism=args.realism),
             "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress)}
     if n_anny:  # presets-only sequences, then Anny-mixed ones: the first set's cache stays valid
         from models.train.anny_bodies import ensure_built
@@ -374,7 +377,7 @@ def main(argv: list[str] | None = None) -> dict:
 
         ensure_built(anny_phenotypes(args.anny, args.seed + 2), progress)  # into the body cache, once
         more = generate_sequences("train", n_anny, seed=args.seed + 2, workers=args.workers, progress=progress,
-                                  anny=args.anny, anny_share=args.anny_share)
+                                  anny=args.anny, anny_share=args.anny_share, realism=args.realism)
         data["train"] = {k: np.concatenate([data["train"][k], more[k]]) for k in data["train"]}
     examples, per_frame = {}, {}
     for split, d in data.items():
