@@ -80,11 +80,16 @@ def sample_motion(rotations: np.ndarray, root: np.ndarray, fps: float, times: np
 
 
 def calibration_prelude(first_rotations: np.ndarray, pose: str, rest_joints: np.ndarray, hold_s: float,
-                        blend_s: float, rate_hz: float) -> np.ndarray:
+                        blend_s: float, rate_hz: float, pose_error: np.ndarray | None = None) -> np.ndarray:
     """(K, 22, 4) local rotations: ``pose`` held for hold_s facing the clip's first heading,
-    then a smooth blend into ``first_rotations`` (22, 4) over blend_s; K samples at rate_hz."""
+    then a smooth blend into ``first_rotations`` (22, 4) over blend_s; K samples at rate_hz.
+    pose_error (22, 4): how the performer's held pose differs from the ideal one (each segment
+    turned by it in its own frame; None: held exactly)."""
     facing = yaw_quat(yaw_of(first_rotations[0]))
-    calib = local_rotations(quat_multiply(facing, pose_globals(pose, rest_joints)))
+    held = quat_multiply(facing, pose_globals(pose, rest_joints))
+    if pose_error is not None:
+        held = quat_normalize(quat_multiply(held, pose_error))
+    calib = local_rotations(held)
     n = int(round((hold_s + blend_s) * rate_hz))
     t = np.arange(n) / rate_hz
     x = np.clip((t - hold_s) / max(blend_s, 1e-9), 0.0, 1.0)
@@ -103,7 +108,7 @@ class ImuStreamer:
                  layout=None, device: str = "suit", mounting_error_deg: float = 10.0,
                  noise: ImuNoise = DEFAULT_NOISE, calib_pose: str = "tpose", calib_hold_s: float = 2.0,
                  blend_s: float = 0.25, latency_ms: float = 1.0, baud: int = 2_000_000,
-                 split_prob: float = 0.3):
+                 split_prob: float = 0.3, calib_pose_error_deg: float = 0.0):
         if protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
         self.scene = scene
@@ -121,6 +126,11 @@ class ImuStreamer:
         self.split_prob = float(split_prob)
         rng = np.random.default_rng([self.seed, 0x1A0])
         self.mounting = mounting_rotations(self.layout, mounting_error_deg, rng)
+        self.pose_error = None
+        if calib_pose_error_deg > 0:
+            err = np.random.default_rng([self.seed, 0x1A2]).normal(0.0, np.radians(calib_pose_error_deg), (NUM_JOINTS, 3))
+            err[0, 1] = 0.0  # where the performer faces is not an error of the pose
+            self.pose_error = quat_from_axis_angle(err)
         self._rng = np.random.default_rng([self.seed, 0x1A1])
         self.track: ImuTrack | None = None
         self.sent: list[SentRecord] = []
@@ -149,7 +159,8 @@ class ImuStreamer:
         start_s = frame / fps
         n_clip = int(np.floor((len(root) - 1 - frame) / fps * self.rate_hz)) + 1
         clip_rot, clip_root = sample_motion(rot, root, fps, start_s + np.arange(n_clip) / self.rate_hz)
-        pre = calibration_prelude(clip_rot[0], self.calib_pose, rest, hold, self.blend_s, self.rate_hz)
+        pre = calibration_prelude(clip_rot[0], self.calib_pose, rest, hold, self.blend_s, self.rate_hz,
+                                  self.pose_error)
         pre_root = np.broadcast_to(clip_root[0], (len(pre), 3))
         motion = SimpleMotion(fps=self.rate_hz, rotations=np.concatenate([pre, clip_rot]),
                               root=np.concatenate([pre_root, clip_root]), rest_joints=rest)

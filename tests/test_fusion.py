@@ -94,7 +94,7 @@ def test_fusion_rides_through_occlusions(results):
 def test_fusion_learns_heading(results, session):
     _, scene, _ = session
     fuser = results["fusion_stage"].fuser
-    off = np.degrees(fuser.common_yaw - yaw_of(scene.motion.rotations[0, 0]))
+    off = np.degrees(fuser.heading.yaw - yaw_of(scene.motion.rotations[0, 0]))
     assert abs((off + 180) % 360 - 180) < 8
 
 

@@ -1,17 +1,26 @@
-"""Depth + IMU fusion: limb rotations from the suit, root, heading and proportions from depth.
+"""Depth + IMU fusion that is never worse than its parts: each bone weighed by what is known of it.
 
 Per depth frame (``Fuser.update``), with the suit's orientations aligned to the frame's time:
-- heading: each sensor's heading drift (a yaw about world up) is the yaw that best turns the
-  bones its segment carries (as the IMU predicts them) onto the depth skeleton's bones, weighted
-  by depth confidence and horizontal length, and low-pass filtered (drift is slow, depth noise
-  is not);
-- rotations: measured segments from the IMUs (they do not care about occlusion); joints without
-  a sensor are interpolated (suit_skeleton) and then swung toward the depth bone direction by a
-  filtered correction;
-- proportions: the rest offset of every bone is the confidence-weighted mean of
-  G_parent^-1 (x_child - x_parent) over frames (full 3D, not only the length), frozen after
-  ``rest_frames``;
-- root: the IMU foot odometry step, pulled toward the depth pelvis (a complementary filter).
+
+1. The suit's segment rotations are corrected by the rotation filters of
+   ``live.imu.fusion_filters``: a shared heading (the calibration frame's yaw in the world) and,
+   per sensor, a mounting rotation and a heading drift, all learnt from the depth bones while
+   depth sees them (Kalman filters: their variances say how well each bone is known).
+2. Every bone gets a direction from the suit (measured segments; joints without a sensor are
+   interpolated, ``live.imu.suit_skeleton.fill_globals``) with a standard deviation: the filter's
+   for measured segments, a wide one for interpolated joints (a spine bent unevenly), and a
+   length learnt from depth.
+3. The joints are the least-squares fit of both sources: each depth joint pulls with its
+   confidence over the depth noise, each suit bone with its variance. A linear 22-joint system
+   (the same for x, y and z), solved twice: depth joints far from the first fit (beyond what
+   their noise and the bone's explain: a limb the regressor lost but still reports) are
+   down-weighted (Cauchy) in the second. A bone the suit knows well carries a limb depth lost;
+   a bone it knows badly follows depth.
+4. Without depth (no person in the frame) the suit poses the skeleton at a root moved by foot
+   odometry from the last fused one.
+
+Before the heading is known (the first depth frame) and for bones the suit does not measure,
+the result is the depth skeleton's; as the filters converge, the suit's share grows.
 """
 
 from __future__ import annotations
@@ -19,205 +28,367 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.frames import SkeletonFrame
-from live.core.heading import wrap_angle, yaw_between
+from live.core.heading import yaw_between, yaw_quat
 from live.core.kinematics import joints_from_global_quats, local_rotations
-from live.core.rotations import quat_between, quat_identity, quat_multiply, quat_rotate, quat_slerp
-from live.core.skeleton import ANCESTORS, CHILDREN, JOINT_INDEX, NUM_JOINTS, PARENTS, joints_from_offsets, rest_offsets
+from live.core.rotations import quat_multiply, quat_rotate
+from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, joints_from_offsets, rest_offsets
 from live.core.timing import frame_interval_s, seconds_between
 from live.imu.calibration import Calibration
-from live.imu.suit_skeleton import SuitPose, SuitSolver, fill_globals
-from live.retarget.analytic import estimate_rest_joints
+from live.imu.fusion_filters import HeadingFilter, SensorFilter, rotate_offsets
+from live.imu.suit_skeleton import FootOdometry, SuitPose, fill_globals
 
-#: Bones whose rest direction is kept from the template and only the length is learnt: the
-#: limbs, where a heading error of the parent's sensor would otherwise be baked into the offset
-#: (and then never seen again by the heading filter).
-LENGTH_ONLY = np.array([JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right")
-                        for j in ("knee", "ankle", "foot", "shoulder", "elbow", "wrist")])
+_PARENT = np.array([p for p, _ in BONES])
+_CHILD = np.array([c for _, c in BONES])
+#: Incidence of the 21 bones: (21, 22), +1 at the child, -1 at the parent.
+INCIDENCE = np.zeros((len(BONES), NUM_JOINTS))
+INCIDENCE[np.arange(len(BONES)), _CHILD] = 1.0
+INCIDENCE[np.arange(len(BONES)), _PARENT] = -1.0
 
 
-class RestEstimator:
-    """Running confidence-weighted mean of rest bone offsets in the parent's frame (torso) and
-    of bone lengths (limbs, see LENGTH_ONLY)."""
+#: Each joint against the pelvis: (21, 22), +1 at joint j (1..21), -1 at the pelvis.
+STAR = np.zeros((NUM_JOINTS - 1, NUM_JOINTS))
+STAR[np.arange(NUM_JOINTS - 1), np.arange(1, NUM_JOINTS)] = 1.0
+STAR[:, 0] = -1.0
 
-    def __init__(self, template: np.ndarray):
+
+def solve_joints(depth: np.ndarray, depth_weight: np.ndarray, bones: np.ndarray, bone_weight: np.ndarray,
+                 prior: np.ndarray, prior_weight: float, relative: np.ndarray | None = None,
+                 relative_weight: np.ndarray | None = None) -> np.ndarray:
+    """Joints (22, 3) minimising sum_j w_j |x_j - depth_j|^2 + sum_b v_b |x_c - x_p - bone_b|^2
+    + prior_weight |x - prior|^2 + sum_j u_j |x_j - x_pelvis - relative_j|^2. depth (22, 3),
+    depth_weight (22,), bones (21, 3) in BONES order, bone_weight (21,), prior (22, 3), relative
+    (22, 3) and relative_weight (22,) (row 0 unused). One 22 x 22 matrix for the three axes."""
+    A = INCIDENCE.T @ (bone_weight[:, None] * INCIDENCE)
+    A[np.diag_indices(NUM_JOINTS)] += depth_weight + prior_weight
+    rhs = depth_weight[:, None] * depth + INCIDENCE.T @ (bone_weight[:, None] * bones) + prior_weight * prior
+    if relative is not None and relative_weight is not None:
+        u = relative_weight[1:]
+        A += STAR.T @ (u[:, None] * STAR)
+        rhs += STAR.T @ (u[:, None] * relative[1:])
+    return np.linalg.solve(A, rhs)
+
+
+#: Segments whose bones keep the template's direction (only their length is learnt): the limbs,
+#: whose sensors' mounting filter turns their bones instead. Torso bones (pelvis to hips and
+#: spine, chest to neck and collars, ...) are learnt in full in their parent's frame: bodies
+#: differ there more than any mounting error.
+LIMB_SEGMENTS = frozenset(JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right")
+                          for j in ("hip", "knee", "ankle", "foot", "shoulder", "elbow", "wrist"))
+
+
+class RestShape:
+    """The performer's rest bone offsets (each in its parent's frame) learnt from depth: a running
+    confidence-weighted mean of G_parent^-1 (x_child - x_parent) for torso bones, of the length
+    alone for limb bones (template direction), shrunk toward the template scaled by the median
+    length ratio until ``frames_full`` frames of evidence."""
+
+    def __init__(self, template: np.ndarray, frames_full: float = 30.0):
         self.template = np.asarray(template, np.float64)
-        self.sum = np.zeros((NUM_JOINTS, 3))
-        self.length = np.zeros(NUM_JOINTS)
-        self.weight = np.zeros(NUM_JOINTS)
-        self.frames = 0
+        tpl = rest_offsets(self.template)[_CHILD]
+        self.tpl_len = np.linalg.norm(tpl, axis=-1)
+        self.tpl_unit = tpl / np.maximum(self.tpl_len[:, None], 1e-9)
+        self.limb = np.array([p in LIMB_SEGMENTS for p in _PARENT])
+        self.sum = np.zeros((len(BONES), 3))
+        self.len_sum = np.zeros(len(BONES))
+        self.weight = np.zeros(len(BONES))
+        self.frames_full = frames_full
 
-    def add(self, joints: np.ndarray, glob: np.ndarray, conf: np.ndarray) -> None:
-        child = np.arange(1, NUM_JOINTS)
-        par = PARENTS[1:]
-        w = conf[child] * conf[par]
-        d = joints[child] - joints[par]
-        inv = glob[par] * np.array([1.0, -1.0, -1.0, -1.0])
-        self.sum[1:] += w[:, None] * quat_rotate(inv, d)
-        self.length[1:] += w * np.linalg.norm(d, axis=-1)
-        self.weight[1:] += w
-        self.frames += 1
+    def add(self, joints: np.ndarray, glob: np.ndarray, weight: np.ndarray) -> None:
+        w = np.sqrt(weight[_CHILD] * weight[_PARENT])
+        d = joints[_CHILD] - joints[_PARENT]
+        self.sum += w[:, None] * quat_rotate(glob[_PARENT] * np.array([1.0, -1.0, -1.0, -1.0]), d)
+        self.len_sum += w * np.linalg.norm(d, axis=-1)
+        self.weight += w
 
-    def rest_joints(self, trust: float = 1.0) -> np.ndarray:
-        """(22, 3) T-pose skeleton: the template scaled by the median length ratio, moved toward
-        the mean offsets by ``trust`` (1: the offsets as measured; 0: only the overall scale,
-        robust to per-joint depth bias); feet on the floor."""
-        tpl = rest_offsets(self.template)
+    def offsets(self) -> np.ndarray:
+        """(22, 3) rest offsets (row 0 zero)."""
         seen = self.weight > 1e-6
-        w = np.maximum(self.weight, 1e-9)
-        off = np.where(seen[:, None], self.sum / w[:, None], tpl)
-        lengths = self.length[LENGTH_ONLY] / w[LENGTH_ONLY]
-        unit = tpl[LENGTH_ONLY] / np.maximum(np.linalg.norm(tpl[LENGTH_ONLY], axis=-1, keepdims=True), 1e-9)
-        off[LENGTH_ONLY] = np.where(seen[LENGTH_ONLY, None], unit * lengths[:, None], tpl[LENGTH_ONLY])
-        tl = np.linalg.norm(tpl[1:], axis=-1)
-        ratio = np.linalg.norm(off[1:], axis=-1) / np.maximum(tl, 1e-9)
-        scale = float(np.median(ratio[seen[1:] & (tl > 0.05)])) if np.any(seen[1:] & (tl > 0.05)) else 1.0
-        off = scale * tpl + trust * (off - scale * tpl)
-        off[0] = 0.0  # pelvis at the origin
-        rest = joints_from_offsets(off)
-        low = rest[[7, 8, 10, 11], 1].min()
-        tpl_low = self.template[[7, 8, 10, 11], 1].min()
-        rest[:, 1] += -low + tpl_low
+        wt = np.maximum(self.weight, 1e-9)
+        length = np.where(seen, self.len_sum / wt, self.tpl_len)
+        long = seen & (self.tpl_len > 0.05)
+        scale = float(np.median(length[long] / self.tpl_len[long])) if long.any() else 1.0
+        base = scale * self.tpl_len[:, None] * self.tpl_unit
+        learnt = np.where(self.limb[:, None], self.tpl_unit * length[:, None], self.sum / wt[:, None])
+        trust = np.clip(self.weight / self.frames_full, 0.0, 1.0)[:, None]
+        out = np.zeros((NUM_JOINTS, 3))
+        out[_CHILD] = np.where(seen[:, None], trust * learnt + (1.0 - trust) * base, base)
+        return out
+
+    def variance(self, torso_std: float = 0.3, limb_std: float = 0.05) -> np.ndarray:
+        """(21,) how uncertain each bone's offset still is (m^2): a fraction of its length
+        (torso_std of torso bones' template offsets, limb_std of limb lengths) shrinking as
+        evidence comes in."""
+        frac = np.where(self.limb, limb_std, torso_std) * self.tpl_len
+        return frac ** 2 * self.frames_full / (self.frames_full + self.weight)
+
+    def rest_joints(self) -> np.ndarray:
+        """(22, 3) T-pose from the learnt offsets, the lowest foot joint as high as the template's."""
+        rest = joints_from_offsets(self.offsets())
+        feet = [7, 8, 10, 11]
+        rest[:, 1] += self.template[feet, 1].min() - rest[feet, 1].min()
         return rest
+
+
+#: The depth skeleton's noise per joint and axis (m) where the depth supports the joint
+#: (confidence > 0): RMS errors of the skeleton stage on the tuning sessions of
+#: ``python -m research.imu_fusion_eval --tune`` (held-out subject 7, two held-out bodies).
+DEPTH_STD = np.array([0.017, 0.020, 0.020, 0.026, 0.024, 0.020, 0.029, 0.024, 0.020, 0.031, 0.028, 0.023,
+                      0.021, 0.024, 0.023, 0.021, 0.023, 0.020, 0.025, 0.029, 0.040, 0.039])
+#: Joints inside the body: the depth never supports them (confidence ~0), and they are no worse
+#: for it.
+INNER = np.array([JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3")])
+
+
+def depth_variance(confidence: np.ndarray, joints: np.ndarray, unsupported: float = 4.0,
+                   min_conf: float = 0.0) -> np.ndarray:
+    """(22,) variance (m^2, per axis) of each depth joint: DEPTH_STD, times ``unsupported`` where
+    the depth does not support it (confidence <= min_conf: hidden, out of the image) except inner
+    joints; infinite for non-finite joints."""
+    std = DEPTH_STD * np.where(np.asarray(confidence) > min_conf, 1.0, unsupported)
+    std[INNER] = DEPTH_STD[INNER]
+    return np.where(np.all(np.isfinite(joints), axis=-1), std ** 2, np.inf)
+
+
+def default_template(rest_joints: np.ndarray) -> np.ndarray:
+    """The body library's mean T-pose (real bodies' bone directions) at the pelvis height of
+    ``rest_joints``; ``rest_joints`` itself without a library."""
+    from live.body.library import mean_rest_template
+    from live.core.skeleton import pelvis_height
+
+    tpl = mean_rest_template()
+    rest = np.asarray(rest_joints, np.float64)
+    return rest if tpl is None else np.asarray(tpl, np.float64) * pelvis_height(rest)
+
+
+def _joint_var(bone_weight: np.ndarray) -> np.ndarray:
+    """(22,) position variance a joint inherits from the suit: its own bone's, for the pelvis the
+    best-known of its bones'."""
+    var = np.full(NUM_JOINTS, np.inf)
+    inv = np.where(bone_weight > 0, 1.0 / np.maximum(bone_weight, 1e-30), np.inf)
+    var[_CHILD] = inv
+    var[0] = inv[_PARENT == 0].min()
+    return var
 
 
 class Fuser:
     """Fuses aligned suit orientations with depth skeletons (see module doc).
 
-    heading_tau_s: time constant of the shared heading filter; drift_tau_s: of each sensor's
-    own drift, learnt only from bones whose horizontal evidence (m^2) reaches drift_evidence
-    (None: off, the default: a sensor's mounting-heading error then leaks into its drift
-    estimate and costs more than the slow drift it removes on sessions of minutes); swing_alpha: per-frame gain of the
-    correction of unmeasured joints; root_gain: pull of the depth pelvis on the root per frame;
-    rest_frames: frames averaged into the bone offsets before they are frozen; min_conf: depth
-    joints below it are ignored."""
+    unsupported: how much noisier a depth joint without depth support is (``depth_variance``); interp_std: direction std (rad) of a
+    bone whose parent has no sensor (interpolated or following its parent); imu_std: of a measured
+    segment's bones beyond what its filter knows (jitter, skin motion); length_std: of a bone's
+    length (m); robust: the Cauchy scale, in standard
+    deviations, of the second solve; shape_rate (m/sqrt(s)): how fast the body's shape (each
+    joint against the pelvis) may drift from where the last frame and the suit's motion since put
+    it (a Kalman prediction; the depth joints are its measurements); correlation: how many frames one depth measurement is
+    worth less than independent ones (the depth stage's errors last: its temporal model, a pose
+    it misreads for a while), dividing what the filters learn from each; interp_window / interp_prior: frames the suit variance of
+    bones without a sensor is averaged over, and how many the interp_std guess counts for; gate / clear_frames: when a limb's depth joints are taken for
+    lost and found again (``_lost_limbs``); filter options: ``heading`` (HeadingFilter) and ``sensor``
+    (SensorFilter) keyword dicts."""
 
-    def __init__(self, calibration: Calibration, *, heading_tau_s: float = 1.0, drift_tau_s: float | None = None,
-                 drift_evidence: float = 0.03, swing_alpha: float = 0.15,
-                 root_gain: float = 0.45, rest_frames: int = 300, rest_trust: float = 0.5, warmup_frames: int = 10, min_conf: float = 0.3):
+    def __init__(self, calibration: Calibration, *, template: np.ndarray | None = None, unsupported: float = 4.0,
+                 interp_std: float = np.radians(20.0), imu_std: float = np.radians(2.0), length_std: float = 0.01,
+                 robust: float = 3.0, learn_conf: float = 0.5, gate: float = 2.5, clear_frames: int = 5,
+                 correlation: float = 8.0, shape_rate: float = 0.1,
+                 interp_window: int = 60, interp_prior: int = 10,
+                 heading: dict | None = None, sensor: dict | None = None):
         self.cal = calibration
-        self.solver = SuitSolver(calibration, calibration.rest_joints)
-        self.plan = self.solver.plan
+        self.template = default_template(calibration.rest_joints) if template is None else np.asarray(template, np.float64)
         self.S = len(calibration.sensors)
-        self.yaw = np.zeros(self.S)
-        self.common_yaw = 0.0
-        self.drift = np.zeros(self.S)
-        self.heading_tau_s = heading_tau_s
-        self.drift_tau_s = float("inf") if drift_tau_s is None else float(drift_tau_s)
-        self.drift_evidence = drift_evidence
-        self.swing_alpha = swing_alpha
-        self.root_gain = root_gain
-        self.rest_frames = rest_frames
-        self.rest_trust = rest_trust
-        self.warmup_frames = warmup_frames
-        self.min_conf = min_conf
-        self.rest = RestEstimator(calibration.rest_joints)
-        self._seen: list[np.ndarray] = []
-        self._swing = quat_identity((NUM_JOINTS,))
+        self.row = {int(j): i for i, j in enumerate(calibration.joints)}
+        from live.imu.suit_skeleton import ChainPlan
+
+        self.plan = ChainPlan.of(calibration.joints)
+        self.heading = HeadingFilter(**(heading or {}))
+        free = np.array([int(j) in LIMB_SEGMENTS for j in calibration.joints])
+        self.sensors = SensorFilter(self.S, mount_free=free, **(sensor or {}))
+        self.shape = RestShape(self.template)
+        self.unsupported, self.interp_std, self.imu_std = unsupported, interp_std, imu_std
+        self.length_std, self.robust, self.learn_conf = length_std, robust, learn_conf
+        self.gate, self.clear_frames, self.correlation = gate, clear_frames, correlation
+        self._lost = np.zeros(NUM_JOINTS, bool)
+        self.shape_rate, self.shape_start_s = shape_rate, 1.0
+        self._shape: np.ndarray | None = None  # last fused joints against the pelvis
+        self._shape_var = np.full(NUM_JOINTS, np.inf)
+        self._rel_prev = np.zeros((NUM_JOINTS, 3))
+        self.last_bones: tuple[np.ndarray, np.ndarray] | None = None  # suit bone vectors and weights
+        tpl_len = np.linalg.norm(rest_offsets(self.template)[_CHILD], axis=-1)
+        self.interp_window = interp_window
+        self._interp_var = (interp_std * tpl_len) ** 2 + length_std ** 2
+        self._interp_n = np.full(len(BONES), float(interp_prior))
+        self._agree = np.zeros(NUM_JOINTS, np.int64)
+        self.odometry = FootOdometry(self.template)
         self._root: np.ndarray | None = None
         self._odo_prev: np.ndarray | None = None
         self._last_t: int | None = None
         self.frames = 0
-        # Sensor rows whose segment carries bones (heading observable) / leaves (borrow).
-        row = {int(j): i for i, j in enumerate(calibration.joints)}
-        self._borrow = np.arange(self.S)
-        for i, j in enumerate(calibration.joints):
-            if not CHILDREN[int(j)]:
-                a = next((a for a in ANCESTORS[int(j)] if a in row), -1)
-                self._borrow[i] = row[a] if a >= 0 else i
-        self._free = [j for j in range(1, NUM_JOINTS) if self.plan.source[j] < 0 and CHILDREN[j]]
-        self._needs_depth_locals = any(self.plan.anchor[j] < 0 for j in self._free)
+        self.counters = {"depth_frames": 0, "suit_only_frames": 0, "outliers": 0, "lost_joint_frames": 0}
+        # Bones of each measured segment (its children), for the filters.
+        self._kids = {i: list(CHILDREN[int(j)]) for i, j in enumerate(calibration.joints)}
 
+    # -- pieces ---------------------------------------------------------------------------------
     def rest_joints(self) -> np.ndarray:
-        if self.rest.frames >= self.warmup_frames:
-            return self.rest.rest_joints(self.rest_trust)
-        if self._seen:
-            return estimate_rest_joints(np.stack(self._seen), self.cal.rest_joints).astype(np.float64)
-        return np.asarray(self.cal.rest_joints, np.float64)
+        return self.shape.rest_joints()
 
-    def _update_heading(self, seg: np.ndarray, x: np.ndarray, conf: np.ndarray, offs: np.ndarray,
-                        dt: float) -> None:
-        """Sensors share one world heading up to slow per-sensor drift: the shared part comes
-        from every bone pooled (fast), each sensor's drift only from its own well-observed
-        (horizontal) bones (slow)."""
-        sums = np.zeros((self.S, 2))
-        for i, j in enumerate(self.cal.joints):
-            kids = list(CHILDREN[int(j)])
+    def _segments(self, quats: np.ndarray) -> np.ndarray:
+        """Calibrated segment rotations with the shared heading (S, 4), before the sensor filter."""
+        g = self.cal.segment_globals(quats)
+        return quat_multiply(yaw_quat(np.full(self.S, self.heading.yaw)), g)
+
+    def _heading_update(self, seg: np.ndarray, offs: np.ndarray, x: np.ndarray, var: np.ndarray) -> None:
+        """The yaw turning the suit's measured bones onto the depth bones, into the heading filter."""
+        corrected = self.sensors.correct(seg)
+        pred, obs, wt = [], [], []
+        for i, kids in self._kids.items():
+            j = int(self.cal.joints[i])
+            for k in kids:
+                pred.append(rotate_offsets(corrected[i], offs[k][None])[0])
+                obs.append(x[k] - x[j])
+                wt.append(1.0 / (var[k] + var[j]))
+        if not pred:
+            return
+        angle, evidence = yaw_between(np.array(pred), np.array(obs), np.array(wt))
+        if evidence < 1e-3:
+            return
+        self.heading.update(angle, 1.0 / evidence)
+
+    def _sensor_updates(self, seg: np.ndarray, offs: np.ndarray, x: np.ndarray, var: np.ndarray) -> None:
+        for i, kids in self._kids.items():
+            j = int(self.cal.joints[i])
+            kids = [k for k in kids if np.isfinite(var[k]) and np.isfinite(var[j])]
             if not kids:
                 continue
-            pred = quat_rotate(seg[i], offs[kids])
-            obs = x[kids] - x[int(j)]
-            w = conf[kids] * conf[int(j)] * (conf[kids] >= self.min_conf) * (conf[int(j)] >= self.min_conf)
-            angle, evidence = yaw_between(pred, obs, w)
-            sums[i] = evidence * np.sin(angle), evidence * np.cos(angle)
-        total = sums.sum(axis=0)
-        if np.hypot(*total) < 1e-3:
-            return
-        common = float(np.arctan2(total[0], total[1]))
-        gain = max(1.0 / (self.frames + 1), 1.0 - np.exp(-dt / self.heading_tau_s))
-        self.common_yaw = float(wrap_angle(self.common_yaw + gain * common))
-        evidence = np.hypot(sums[:, 0], sums[:, 1])
-        own = np.arctan2(sums[:, 0], sums[:, 1])
-        trust = np.clip(evidence / self.drift_evidence, 0.0, 1.0) ** 2
-        drift_gain = (1.0 - np.exp(-dt / self.drift_tau_s)) * trust
-        self.drift = wrap_angle(self.drift + drift_gain * wrap_angle(own - common))
-        self.yaw = wrap_angle(self.common_yaw + self.drift)
+            length = np.linalg.norm(offs[kids], axis=-1)
+            dir_var = self.correlation * (var[kids] + var[j]) / np.maximum(length, 0.05) ** 2
+            self.sensors.update(seg[i], i, offs[kids], x[kids] - x[j], dir_var)
 
-    def _swing_correct(self, glob: np.ndarray, x: np.ndarray, conf: np.ndarray, offs: np.ndarray) -> np.ndarray:
-        """Turn each unmeasured joint by its filtered correction toward the depth bone."""
-        for j in self._free:
-            kids = list(CHILDREN[j])
-            w = conf[kids] * conf[j]
-            k = kids[int(np.argmax(w))]
-            if w.max() >= self.min_conf:
-                meas = quat_between(quat_rotate(glob[j], offs[k]), x[k] - x[j])
-                self._swing[j] = quat_slerp(self._swing[j], meas, self.swing_alpha * float(w.max()))
-            # Only this joint turns: its children keep their own (global) rotations.
-            glob[j] = quat_multiply(self._swing[j], glob[j])
-        return glob
+    def _bones(self, glob: np.ndarray, seg: np.ndarray, offs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Suit bone vectors (21, 3) and their weights (21,) (1 / variance in m^2)."""
+        vec = quat_multiply(glob[_PARENT], np.concatenate([np.zeros((len(BONES), 1)), offs[_CHILD]], -1))
+        vec = quat_multiply(vec, glob[_PARENT] * np.array([1.0, -1.0, -1.0, -1.0]))[:, 1:]
+        length = np.linalg.norm(offs[_CHILD], axis=-1)
+        if self.heading.variance is None:
+            return vec, np.zeros(len(BONES))
+        var = self._interp_var.copy()  # bones of joints without a sensor: as found against depth
+        for b, p in enumerate(_PARENT):
+            i = self.row.get(int(p))
+            if i is not None:
+                dir_var = self.sensors.direction_var(seg[i], i, offs[_CHILD[b]][None])[0] + self.imu_std ** 2
+                dir_var += self.heading.variance * (1.0 - (vec[b, 1] / max(length[b], 1e-9)) ** 2)
+                var[b] = dir_var * length[b] ** 2 + self.length_std ** 2 + self.shape.variance()[b]
+        return vec, 1.0 / var
 
-    def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None) -> tuple[SuitPose, np.ndarray]:
+    def _learn_interp_var(self, x: np.ndarray, var: np.ndarray, vec: np.ndarray) -> None:
+        """Running estimate of each bone's suit variance from its residual against depth (what
+        the residual's spread leaves once the depth's own noise is taken out), used for bones
+        whose parent has no sensor: how far interpolation is off depends on the motion."""
+        ok = np.isfinite(var[_PARENT]) & np.isfinite(var[_CHILD])
+        r = (x[_CHILD] - x[_PARENT]) - vec
+        sample = np.maximum(np.sum(r * r, axis=-1) / 3.0 - var[_PARENT] - var[_CHILD], self.length_std ** 2)
+        self._interp_n = np.where(ok, np.minimum(self._interp_n + 1, self.interp_window), self._interp_n)
+        gain = np.where(ok, 1.0 / np.maximum(self._interp_n, 1), 0.0)
+        self._interp_var = np.where(ok, self._interp_var + gain * (np.where(ok, sample, 0.0) - self._interp_var),
+                                    self._interp_var)
+
+    # -- one frame ------------------------------------------------------------------------------
+    def _lost_limbs(self, x: np.ndarray, var: np.ndarray, vec: np.ndarray, bone_w: np.ndarray) -> np.ndarray:
+        """(22,) depth joints of limbs the depth lost: the bone leading to the joint is farther
+        from the suit's than both their variances explain (``gate`` standard deviations, three
+        degrees of freedom), or the joint hangs below such a one. A joint stays lost until its
+        bone agrees within two standard deviations for ``clear_frames`` frames."""
+        for b, (p, c) in enumerate(BONES):
+            if c not in LIMB_SEGMENTS:
+                continue
+            if bone_w[b] <= 0 or not (np.isfinite(var[p]) and np.isfinite(var[c])):
+                self._agree[c] = 0
+                continue
+            r = (x[c] - x[p]) - vec[b]
+            d2 = float(r @ r) / (1.0 / bone_w[b] + var[p] + var[c])
+            if d2 > self.gate ** 2:
+                self._lost[c] = True
+                self._agree[c] = 0
+            elif d2 < 4.0:
+                self._agree[c] += 1
+                if self._agree[c] >= self.clear_frames:
+                    self._lost[c] = False
+            if self._lost[p] and p in LIMB_SEGMENTS:
+                self._lost[c] = True
+        self.counters["lost_joint_frames"] += int(self._lost.sum())
+        return self._lost.copy()
+
+    def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None) -> tuple[SuitPose, np.ndarray] | None:
         """quats (S, 4) at t_ns -> (fused pose, confidence (22,)). depth None: the suit alone,
-        with the heading and proportions learned so far."""
+        with what the filters learnt so far (None before any depth frame: nothing says where
+        the performer is yet)."""
         dt = frame_interval_s(30) if self._last_t is None else max(seconds_between(self._last_t, t_ns), 1e-4)
         self._last_t = t_ns
-        rest = self.rest_joints()
-        offs = rest_offsets(rest)
-        seg = self.solver.segment_globals(quats, self.yaw)
-        x = conf = None
+        self.heading.predict(dt)
+        self.sensors.predict(dt)
+        x = var = None
         if depth is not None:
             x = np.asarray(depth.joints, np.float64)
-            conf = np.asarray(depth.confidence, np.float64)
-            if len(self._seen) < self.warmup_frames:
-                self._seen.append(x)
-            self._update_heading(seg, x, conf, offs, dt)
-            self.drift = self.drift[self._borrow]
-            self.yaw = wrap_angle(self.common_yaw + self.drift)
-            seg = self.solver.segment_globals(quats, self.yaw)
-        fallback = None
-        if x is not None and self._needs_depth_locals:
-            from live.retarget.analytic import local_rotations_from_joints
-
-            fallback = local_rotations_from_joints(x, rest)
-        glob = fill_globals(seg, self.plan, fallback)
+            var = depth_variance(depth.confidence, x, self.unsupported)
+            if not np.isfinite(var).any():
+                x = var = None
+            else:
+                x = np.where(np.isfinite(x), x, 0.0)
+        if x is None and self.heading.variance is None:
+            return None  # nothing says where the performer is or faces yet
+        offs = self.shape.offsets()
+        seg = self._segments(quats)
+        glob = fill_globals(self.sensors.correct(seg), self.plan)
+        vec, bone_w = self._bones(glob, seg, offs)
         if x is not None:
-            glob = self._swing_correct(glob, x, conf, offs)
-        local = local_rotations(glob)
+            # Tested as if supported: a guess the depth does not support must agree with the suit.
+            base = np.where(np.isfinite(var), DEPTH_STD ** 2, np.inf)
+            var = np.where(self._lost_limbs(x, base, vec, bone_w), np.inf, var)
+            self._heading_update(seg, offs, x, var)
+            seg = self._segments(quats)
+            glob = fill_globals(self.sensors.correct(seg), self.plan)
+            vec, bone_w = self._bones(glob, seg, offs)
         rel = joints_from_global_quats(glob, np.zeros(3), offs)
-        odo = self.solver.odometry.update(rel)
+        odo = self.odometry.update(rel)
         step = np.zeros(3) if self._odo_prev is None else odo - self._odo_prev
         self._odo_prev = odo
-        root = odo if self._root is None else self._root + step
-        if x is not None and conf[0] >= self.min_conf:
-            k = 1.0 if self._root is None else self.root_gain * conf[0]
-            root = root + k * (x[0] - root)
-        self._root = root
-        if x is not None and self.frames >= self.warmup_frames and self.rest.frames < self.rest_frames:
-            self.rest.add(x, glob, conf * (conf >= self.min_conf))
+        predicted_root = odo if self._root is None else self._root + step
+        prior = rel + predicted_root
+        # The body's shape (joints against the pelvis) a frame ago, moved as the suit says since.
+        relative, rel_w = None, None
+        if self._shape is not None:
+            self._shape_var += self.shape_rate ** 2 * dt
+            relative = self._shape + (rel - self._rel_prev)
+            rel_w = 1.0 / self._shape_var
+        self._rel_prev = rel
+        if x is None:
+            joints = solve_joints(np.zeros((NUM_JOINTS, 3)), np.zeros(NUM_JOINTS), vec, bone_w, prior, 1.0,
+                                  relative, rel_w)
+            self.counters["suit_only_frames"] += 1
+        else:
+            depth_w = np.where(np.isfinite(var), 1.0 / var, 0.0)
+            joints = solve_joints(x, depth_w, vec, bone_w, prior, 1e-6, relative, rel_w)
+            # Second solve: depth joints the suit's bones cannot explain lose their pull (the
+            # residual against its own noise and the uncertainty of the bone leading to it).
+            r2 = np.sum((joints - x) ** 2, axis=-1) / (var + _joint_var(bone_w))
+            keep = 1.0 / (1.0 + r2 / self.robust ** 2)
+            self.counters["outliers"] += int(np.sum(keep < 0.5))
+            joints = solve_joints(x, depth_w * keep, vec, bone_w, prior, 1e-6, relative, rel_w)
+            seen = depth_w * keep
+            info = np.where(seen > 0, 1.0 / (1.0 / np.maximum(seen, 1e-30) + 1.0 / max(seen[0], 1e-30)), 0.0)
+            self._shape_var = 1.0 / (1.0 / self._shape_var + info)
+            learn_var = np.where(keep >= self.learn_conf, var, np.inf)
+            self._learn_interp_var(x, learn_var, vec)
+            self._sensor_updates(seg, offs, x, learn_var)
+            self.shape.add(x, glob, np.minimum(0.025 ** 2 / learn_var, 1.0))
+            self.counters["depth_frames"] += 1
+        self._root = joints[0].copy()
+        if self._shape is None and x is not None:
+            self._shape_var = np.full(NUM_JOINTS, self.shape_rate ** 2 * self.shape_start_s)
+        if self._shape is not None or x is not None:
+            self._shape = joints - joints[0]
+        self.last_bones = (vec, bone_w)
         self.frames += 1
-        out_conf = np.ones(NUM_JOINTS)
-        if depth is None:
-            out_conf *= 0.8
-        return SuitPose(root=root, local=local, glob=glob, joints=rel + root), out_conf
+        out_conf = np.ones(NUM_JOINTS) if x is not None else np.full(NUM_JOINTS, 0.8)
+        return SuitPose(root=joints[0].copy(), local=local_rotations(glob), glob=glob, joints=joints), out_conf
 
 
-__all__ = ["Fuser", "RestEstimator", "LENGTH_ONLY"]
+__all__ = ["Fuser", "RestShape", "LIMB_SEGMENTS", "solve_joints", "INCIDENCE"]

@@ -173,7 +173,10 @@ class FusionStage(_SuitStageBase):
         quats = self.buffer.at(result.t_ns)
         if quats is None:
             return False
-        pose, conf = self.fuser.update(quats, result.t_ns, result.skeleton)
+        fused = self.fuser.update(quats, result.t_ns, result.skeleton)
+        if fused is None:
+            return False
+        pose, conf = fused
         self.last_pose = pose
         result.skeleton = SkeletonFrame(t_ns=result.t_ns, joints=pose.joints.astype(np.float32),
                                         confidence=conf.astype(np.float32))
