@@ -99,10 +99,10 @@ def speed(text: str) -> str:
 
 #: Per command: options naming a results folder, and options naming an output file.
 OUTPUT_FOLDERS = {"demo": ("out",), "replay": ("out",), "run": ("out",), "export": ("out",)}
-OUTPUT_FILES = {"record": ("out",), "synth": ("out",), "render": ("out", "video"), "calibrate": ("out",),
+OUTPUT_FILES = {"record": ("out",), "synth": ("out",), "render": ("out", "video"), "calibrate": ("out",), "import": ("out",),
                 "export": ("foxglove",), "run": ("record", "video"), "replay": ("video",), "demo": ("video",)}
 #: Options naming files a command reads (besides --source strings and the session argument).
-INPUT_OPTIONS = ("session", "motion", "calibration", "results", "model", "body", "avatar", "layout", "sessions")
+INPUT_OPTIONS = ("session", "motion", "calibration", "results", "model", "body", "avatar", "layout", "sessions", "path")
 #: Source kinds whose target is a file or folder the command reads.
 _PATH_SOURCES = ("replay:", "folder:", "sim:", "realsense-bag:")
 

@@ -222,6 +222,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=arg.positive_seconds, default=60.0, help="give up after this many seconds")
     _add_force(p)
 
+    p = sub.add_parser("import", help="turn a recorded IMU suit (x-IMU3, Xsens MVNX, Xsens DOT) into a session",
+                       description="Read a suit recording another program wrote and write a session that replay runs "
+                       "like a live suit (docs/imu.md, \"Recorded suits\"). The segments come from the file's labels "
+                       "(or --layout); the calibration from the file (MVNX) or from the still pose the take starts with.")
+    p.add_argument("format", choices=["ximu3", "mvnx", "xsens-dot"], help="ximu3: the logged folder (one device "
+                   "folder each); mvnx: an .mvnx file; xsens-dot: the DOT app's CSV files (or their folder)")
+    p.add_argument("path", nargs="+", type=Path, help="the recording")
+    p.add_argument("--out", type=Path, required=True, help="session file to write (.mcap)")
+    p.add_argument("--layout", default=None, help="JSON {\"sensors\": {\"<id or label>\": \"<segment>\"}} when the "
+                   "file's labels do not name segments")
+    p.add_argument("--pose", choices=["tpose", "npose"], default=None,
+                   help="the calibration pose the take starts with (default: the file's, else npose)")
+    p.add_argument("--stream", choices=["segments", "sensors"], default="segments",
+                   help="mvnx: MVN's solved segment orientations (default) or the raw sensor orientations")
+    p.add_argument("--rate", type=arg.fps, default=None, metavar="HZ",
+                   help="sample rate of the session (default: the recording's)")
+    p.add_argument("--height", type=arg.performer_height, default=1.75, help="performer height in metres")
+    _add_force(p)
+
     sub.add_parser("devices", help="list OAK and RealSense cameras and serial ports",
                    description="List connected OAK devices, RealSense devices and serial ports.")
     from live.app.batch_args import add_batch_parser  # argparse only: Ray is imported by the command
@@ -234,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
 COMMAND_MODULES = {"demo": "commands", "replay": "commands", "render": "commands", "record": "commands",
                    "run": "commands", "export": "session_commands", "info": "session_commands",
                    "devices": "device_commands", "calibrate": "device_commands", "synth": "tool_commands",
-                   "eval": "tool_commands", "train": "tool_commands", "batch": "batch"}
+                   "eval": "tool_commands", "train": "tool_commands", "batch": "batch", "import": "import_command"}
 
 
 def _command(name: str):

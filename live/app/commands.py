@@ -49,6 +49,8 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
         if stream.kind == "gt" and "camera_to_world" in stream.meta:  # extrinsics withheld from the depth
             parts["accuracy"].set_true_camera(stream.meta["camera_to_world"])
     only = getattr(args, "only", None)
+    if only is None and _suit_without_camera(source):
+        only = "imu"  # an imported suit recording: nothing else would make a skeleton
     if only is not None:
         stages = _capture_mode_stages(only, source, stages, args)
     stats = run_pipeline([source], stages, sinks, mode="every", progress_total=total, progress=not args.quiet)
@@ -71,11 +73,19 @@ def _exit_for(stats: dict) -> int:
     return EXIT_DATA_LOSS if damaged else 0
 
 
+def _suit_without_camera(source) -> bool:
+    """A session with a suit stream and no depth stream (``livecap import``)."""
+    from live.imu.stage import is_suit_stream
+
+    streams = source.streams() if hasattr(source, "streams") else []
+    return any(is_suit_stream(s) for s in streams) and not any(s.kind == "depth" for s in streams)
+
+
 def _capture_mode_stages(mode: str, source, stages: list, args) -> list:
     """Swap the skeleton stage for the IMU-only or fused one (``replay --only``)."""
-    from live.imu.stage import build_stages
+    from live.imu.stage import build_stages, is_suit_stream
 
-    suit = [s for s in source.streams() if s.kind == "serial"]
+    suit = [s for s in source.streams() if is_suit_stream(s)]
     if mode in ("imu", "fused") and not suit:
         raise UserInputError(f"--only {mode} needs a session with an IMU suit stream")
     depth_stage = next((s for s in stages if getattr(s, "name", "") == "skeleton"), None)

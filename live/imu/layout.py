@@ -39,6 +39,46 @@ SEGMENT_ALIASES: dict[str, str] = {
 }
 
 
+#: Segment words of suit vendors and recording software (MVN's segment labels, x-IMU3 device
+#: names, Xsens DOT tags) -> the canonical joint whose global rotation the segment follows,
+#: without the side. "shoulder" is the vendors' (MVN's) clavicle segment, not the canonical
+#: shoulder joint (the upper arm); "foot" is the foot segment (canonical ankle), "toe" the toes.
+LABEL_PARTS: dict[str, str] = {
+    "pelvis": "pelvis", "hips": "pelvis", "hip": "hip", "sacrum": "pelvis", "waist": "pelvis",
+    "l5": "spine1", "lumbar": "spine1", "lowerback": "spine1", "abdomen": "spine1", "spine1": "spine1",
+    "l3": "spine2", "spine": "spine2", "spine2": "spine2",
+    "t8": "spine3", "chest": "spine3", "sternum": "spine3", "thorax": "spine3", "upperback": "spine3",
+    "trunk": "spine3", "torso": "spine3", "spine3": "spine3",
+    "neck": "neck", "head": "head",
+    "shoulder": "collar", "clavicle": "collar", "collar": "collar",
+    "upperarm": "shoulder", "humerus": "shoulder", "arm": "shoulder",
+    "forearm": "elbow", "lowerarm": "elbow", "radius": "elbow", "elbow": "elbow",
+    "hand": "wrist", "wrist": "wrist",
+    "upperleg": "hip", "thigh": "hip", "femur": "hip", "upleg": "hip",
+    "lowerleg": "knee", "shank": "knee", "shin": "knee", "tibia": "knee", "leg": "knee", "calf": "knee",
+    "knee": "knee",
+    "foot": "ankle", "ankle": "ankle", "toe": "foot", "toes": "foot", "toebase": "foot",
+}
+_SIDES = (("left", "left"), ("right", "right"), ("l", "left"), ("r", "right"))
+
+
+def segment_from_label(label: str) -> int | None:
+    """A recording's segment label (``Pelvis``, ``LeftUpperLeg``, ``left_lower_leg``, ``LFemur``,
+    ``Right Foot``, ``T8``) -> canonical joint index, or None when the label names no segment
+    of the 22-joint skeleton (``T12``, a device nickname). Case, spaces, ``_`` and ``-`` do not
+    matter; a left/right (or L/R) prefix or suffix gives the side."""
+    word = "".join(ch for ch in label.lower() if ch.isalnum())
+    if word in LABEL_PARTS and LABEL_PARTS[word] in JOINT_INDEX:
+        return JOINT_INDEX[LABEL_PARTS[word]]
+    for affix, side in _SIDES:
+        for rest in ((word[len(affix):] if word.startswith(affix) else None),
+                     (word[:-len(affix)] if word.endswith(affix) and len(affix) > 1 else None)):
+            part = LABEL_PARTS.get(rest) if rest else None
+            if part is not None and f"{side}_{part}" in JOINT_INDEX:
+                return JOINT_INDEX[f"{side}_{part}"]
+    return None
+
+
 @dataclass(frozen=True)
 class SuitLayout:
     """A suit: S sensors. sensors (S,) int64 ids, ascending; joints (S,) int64 canonical joint

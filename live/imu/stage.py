@@ -17,7 +17,7 @@ import numpy as np
 from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
 from live.core.rotations import quat_slerp
 from live.core.skeleton import default_rest_joints
-from live.imu.calibration import Calibration, CalibrationCollector
+from live.imu.calibration import Calibration, CalibrationCollector, calibrate
 from live.imu.fusion import Fuser
 from live.imu.layout import SuitLayout, load_suit_layout
 from live.imu.suit_skeleton import SuitPose, SuitSolver
@@ -63,24 +63,55 @@ class SensorBuffer:
         return quat_slerp(self.q[0], self.q[1], u)
 
 
+class WindowCalibrator:
+    """Calibrates on the packets of a known hold (an imported take's, found at import): once the
+    stream passes the window's end, ``feed`` returns the Calibration of the packets inside it."""
+
+    def __init__(self, layout: SuitLayout, pose: str, rest_joints: np.ndarray, window_ns: tuple[int, int], *,
+                 per_sensor_heading: bool = False):
+        self.layout, self.pose, self.rest_joints = layout, pose, rest_joints
+        self.window = (int(window_ns[0]), int(window_ns[1]))
+        self.per_sensor_heading = per_sensor_heading
+        self.packets: list[MocapPacket] = []
+        self.done = False
+
+    def feed(self, packet: MocapPacket) -> Calibration | None:
+        if self.done:
+            return None
+        if packet.t_ns <= self.window[1]:
+            if packet.t_ns >= self.window[0]:
+                self.packets.append(packet)
+            return None
+        self.done = True
+        return calibrate(self.packets, self.layout, self.pose, self.rest_joints,
+                         per_sensor_heading=self.per_sensor_heading, max_spread_deg=20.0)
+
+
 class _SuitStageBase:
     """Shared observe/calibration logic."""
 
     def __init__(self, layout, calibration: Calibration | None, *, pose: str, hold_s: float,
-                 min_hold_s: float | None, rest_joints: np.ndarray | None, height: float, device: str | None):
+                 min_hold_s: float | None, rest_joints: np.ndarray | None, height: float, device: str | None,
+                 window_ns: tuple[int, int] | None = None, per_sensor_heading: bool = False):
         self.layout = load_suit_layout(layout)
         self.rest_joints = np.asarray(default_rest_joints(height) if rest_joints is None else rest_joints, np.float64)
         self.device = device
         self.buffer = SensorBuffer(self.layout)
         self.calibration = calibration
-        self.collector = None if calibration is not None else CalibrationCollector(
-            self.layout, pose, self.rest_joints, hold_s=hold_s, min_hold_s=min_hold_s)
+        if calibration is not None:
+            self.collector = None
+        elif window_ns is not None:
+            self.collector = WindowCalibrator(self.layout, pose, self.rest_joints, window_ns,
+                                              per_sensor_heading=per_sensor_heading)
+        else:
+            self.collector = CalibrationCollector(self.layout, pose, self.rest_joints, hold_s=hold_s,
+                                                  min_hold_s=min_hold_s, per_sensor_heading=per_sensor_heading)
         self.counters = {"packets": 0, "samples": 0, "skeletons": 0, "uncalibrated": 0}
         self.last_pose: SuitPose | None = None
 
     def observe(self, frame: object) -> None:
-        if not isinstance(frame, MocapPacket) or not frame.decoded:
-            return
+        if not isinstance(frame, MocapPacket) or not frame.decoded or frame.quats is None:
+            return  # raw bytes not decoded, or an IMU without orientations (a camera's)
         if self.device is not None and frame.device != self.device:
             return
         self.counters["packets"] += 1
@@ -109,9 +140,11 @@ class ImuSkeletonStage(_SuitStageBase):
     def __init__(self, layout=None, calibration: Calibration | None = None, *, pose: str = "tpose",
                  hold_s: float = 2.0, min_hold_s: float | None = None, rest_joints: np.ndarray | None = None,
                  height: float = 1.75, world_yaw: float = 0.0, start: np.ndarray | None = None,
-                 device: str | None = None):
+                 device: str | None = None, window_ns: tuple[int, int] | None = None,
+                 per_sensor_heading: bool = False):
         super().__init__(layout, calibration, pose=pose, hold_s=hold_s, min_hold_s=min_hold_s,
-                         rest_joints=rest_joints, height=height, device=device)
+                         rest_joints=rest_joints, height=height, device=device, window_ns=window_ns,
+                         per_sensor_heading=per_sensor_heading)
         self.world_yaw = world_yaw
         self.start = start
         self.solver = None
@@ -130,7 +163,7 @@ class ImuSkeletonStage(_SuitStageBase):
         quats = self.buffer.at(result.t_ns)
         if quats is None:
             return False
-        pose = self.solver.solve(quats)
+        pose = self.solver.solve(quats, t_ns=result.t_ns)
         self.last_pose = pose
         conf = np.where(self.solver.plan.source >= 0, 1.0, 0.7)
         result.skeleton = SkeletonFrame(t_ns=result.t_ns, joints=pose.joints.astype(np.float32),
@@ -153,9 +186,11 @@ class FusionStage(_SuitStageBase):
 
     def __init__(self, layout=None, calibration: Calibration | None = None, *, pose: str = "tpose",
                  hold_s: float = 2.0, min_hold_s: float | None = None, rest_joints: np.ndarray | None = None,
-                 height: float = 1.75, device: str | None = None, fuser_options: dict | None = None):
+                 height: float = 1.75, device: str | None = None, fuser_options: dict | None = None,
+                 window_ns: tuple[int, int] | None = None, per_sensor_heading: bool = False):
         super().__init__(layout, calibration, pose=pose, hold_s=hold_s, min_hold_s=min_hold_s,
-                         rest_joints=rest_joints, height=height, device=device)
+                         rest_joints=rest_joints, height=height, device=device, window_ns=window_ns,
+                         per_sensor_heading=per_sensor_heading)
         self.fuser_options = dict(fuser_options or {})
         self.fuser: Fuser | None = None
         self.depth_skeleton: SkeletonFrame | None = None
@@ -184,15 +219,30 @@ class FusionStage(_SuitStageBase):
         return True
 
 
+def is_suit_stream(stream) -> bool:
+    """A suit's stream: serial bytes, or decoded samples (``imu``) with a layout (an imported
+    recording); a camera's own IMU is not one."""
+    return stream.kind == "serial" or (stream.kind == "imu" and isinstance(stream.meta.get("layout"), dict))
+
+
 def suit_options_from_stream(meta: dict) -> dict:
-    """Stage keyword arguments from a serial stream's metadata (a synthetic session records its
-    layout and calibration hold there): layout, pose, hold_s, min_hold_s."""
+    """Stage keyword arguments from a suit stream's metadata (a synthetic session records its
+    layout and calibration hold there, an imported one its layout and its calibration: the
+    file's, or the window of the take's hold): layout, pose, hold_s, min_hold_s, calibration,
+    window_ns, per_sensor_heading."""
     out: dict = {}
     if isinstance(meta.get("layout"), dict):
         out["layout"] = load_suit_layout(meta["layout"])
     cal = meta.get("calibration")
     if isinstance(cal, dict):
         out["pose"] = cal.get("pose", "tpose")
+        if isinstance(cal.get("calibration"), dict):
+            out["calibration"] = Calibration.from_json(cal["calibration"])
+        window = cal.get("window_ns")
+        if isinstance(window, list) and len(window) == 2 and all(isinstance(v, int) for v in window):
+            out["window_ns"] = (window[0], window[1])
+        if cal.get("per_sensor_heading") is True:
+            out["per_sensor_heading"] = True
         if "hold_s" in cal:
             # Calibrate before the recorded hold ends (the blend into the motion follows it).
             out["hold_s"] = 0.8 * float(cal["hold_s"])
@@ -218,6 +268,9 @@ def build_stages(mode: str, *, layout=None, calibration: Calibration | str | Pat
     if stream_meta:
         for key, value in suit_options_from_stream(stream_meta).items():
             if key == "layout" and layout is not None:
+                continue
+            if key == "calibration":
+                calibration = calibration if calibration is not None else value
                 continue
             opts[key] = value
     if isinstance(calibration, (str, Path)):

@@ -20,6 +20,7 @@ from live.core.kinematics import joints_from_global_quats, local_rotations
 from live.core.rotations import quat_conjugate, quat_identity, quat_multiply, quat_normalize, quat_slerp
 from live.core.skeleton import CHILDREN, JOINT_INDEX, LEVELS, NUM_JOINTS, PARENTS, rest_offsets
 from live.imu.calibration import Calibration
+from live.imu.heading_guard import HeadingGuard
 
 #: How much of a measured relative rotation an unmeasured joint takes, relative to the measured
 #: joint's own share (1.0). Collars move far less than the shoulders they carry.
@@ -155,8 +156,11 @@ class SuitSolver:
     feet on the floor)."""
 
     def __init__(self, calibration: Calibration, rest_joints: np.ndarray | None = None, *,
-                 world_yaw: float = 0.0, start: np.ndarray | None = None, floor: float = 0.0):
+                 world_yaw: float = 0.0, start: np.ndarray | None = None, floor: float = 0.0,
+                 heading_guard: bool = True):
         self.cal = calibration
+        self.guard = HeadingGuard(calibration.joints) if heading_guard else None
+        self._last_t: int | None = None
         self.rest_joints = np.asarray(calibration.rest_joints if rest_joints is None else rest_joints, np.float64)
         self.plan = ChainPlan.of(calibration.joints)
         self.world_yaw = float(world_yaw)
@@ -172,12 +176,18 @@ class SuitSolver:
 
     def solve(self, quats: np.ndarray, *, yaw_correction: np.ndarray | None = None,
               fallback_local: np.ndarray | None = None, root: np.ndarray | None = None,
-              rest_joints: np.ndarray | None = None) -> SuitPose:
+              rest_joints: np.ndarray | None = None, t_ns: int | None = None) -> SuitPose:
         """quats (S, 4) in calibration (layout) order -> SuitPose. root: the pelvis position when
-        known (depth); else foot odometry. rest_joints: override the skeleton (fusion)."""
+        known (depth); else foot odometry. rest_joints: override the skeleton (fusion). t_ns: the
+        sample's time (the heading guard's time step; default 1/30 s)."""
         if rest_joints is not None:
             self.rest_joints = np.asarray(rest_joints, np.float64)
         seg = self.segment_globals(quats, yaw_correction)
+        if self.guard is not None:
+            dt = 1.0 / 30.0 if t_ns is None or self._last_t is None else max((t_ns - self._last_t) * 1e-9, 1e-4)
+            self._last_t = t_ns
+            self.guard.update(seg, dt)
+            seg = self.guard.apply(seg)
         root_g = None if self._has_pelvis or fallback_local is None else fallback_local[0]
         glob = fill_globals(seg, self.plan, fallback_local, root_global=root_g)
         local = local_rotations(glob)
