@@ -21,6 +21,8 @@ class RunOptions:
     retarget: str = "analytic"
     foot_lock: bool = True
     hand_ik: bool = False
+    #: Self-contacts kept on the avatar: "auto" (on when the avatar has a mesh), "on", "off".
+    contacts: str = "auto"
     model: Path | None = None
     threads: int = 1
     lag: int = 0
@@ -84,8 +86,9 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
         body = _load_avatar(avatar)
         skin = opts.viewer is not None or opts.video is not None
         stages.append(RetargetStage(body, kind=opts.retarget, foot_lock=opts.foot_lock, hand_ik=opts.hand_ik,
-                                    skin=skin))
+                                    skin=skin, contacts=opts.contacts))
         parts["avatar"] = body
+        parts["retarget"] = stages[-1]
     names = body.joint_names if body is not None and opts.bvh_names == "avatar" else None
     results = ResultsWriter(opts.out, avatar_rest_joints=None if body is None else body.rest_joints, fps=opts.fps,
                             avatar_joint_names=names)

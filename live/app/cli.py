@@ -52,6 +52,9 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
     p.add_argument("--retarget", default="analytic", choices=["analytic", "learned"], help="retargeter (default analytic)")
     p.add_argument("--no-foot-lock", action="store_true", help="do not lock feet in contact with the floor")
     p.add_argument("--hand-ik", action="store_true", help="hands reach where the performer's hands reach (scaled)")
+    p.add_argument("--contacts", choices=["on", "off"], default=None,
+                   help="keep the performer's self-contacts (hands together, on hips, head, thighs) on the avatar "
+                   "and its hands and forearms out of its body (default: on when the avatar has a mesh)")
     p.add_argument("--model", type=Path, default=None, help="skeleton model (.onnx; default: the shipped one)")
     p.add_argument("--threads", type=arg.threads, default=1, help="onnxruntime threads for the skeleton model "
                    f"(default 1, at most {arg.MAX_THREADS})")
@@ -184,7 +187,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="eval skeleton: replay sessions with ground truth through the skeleton stage and "
                        "report MPJPE, PA-MPJPE, per-joint MPJPE, PCK@10cm, acceleration error and latency. "
                        "eval retarget: retarget a motion from one body to another and report MPJPE, PA-MPJPE, Acc, "
-                       "PA-Acc, MPVD, PA-MPVD and MDEL.")
+                       "PA-Acc, MPVD, PA-MPVD and MDEL. eval contacts: self-contacts kept and interpenetration, with "
+                       "the correction on and off.")
     esub = p.add_subparsers(dest="what", metavar="WHAT", required=True)
     e = esub.add_parser("skeleton", help="the depth -> skeleton stage")
     e.add_argument("sessions", nargs="+", type=Path, help="sessions with ground truth (e.g. from `livecap synth`)")
@@ -194,6 +198,19 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help=LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
+    e.add_argument("--motion", required=True, help="a BVH clip")
+    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
+    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
+    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
+                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
+    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
+    e.add_argument("--max-frames", type=arg.max_frames, default=None)
+    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+    e = esub.add_parser("contacts", help="self-contacts and interpenetration of retargeting, correction on and off",
+                        description="Retarget a motion from one body to another with the self-contact correction "
+                        "and without; report hand-contact recall and precision, hand and forearm penetration and "
+                        "the joint metrics of both (docs/retargeting.md, \"Self-contacts\").")
     e.add_argument("--motion", required=True, help="a BVH clip")
     e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
     e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")

@@ -24,6 +24,7 @@ def _run_options(args, out: Path, video: Path | None = None, sources=()):
 
     return RunOptions(out=out, fps=take_fps(sources), avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
                       hand_ik=args.hand_ik, model=args.model, threads=args.threads, lag=args.lag, vmc=args.vmc,
+                      contacts=getattr(args, "contacts", None) or "auto",
                       vmc_rate=args.vmc_rate, vmc_mtu=getattr(args, "vmc_mtu", None), viewer=args.viewer, video=video or args.video,
                       bvh_names=getattr(args, "bvh_names", "avatar"))
 
@@ -48,6 +49,8 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     for stream in source.streams() if hasattr(source, "streams") else []:
         if stream.kind == "gt" and "camera_to_world" in stream.meta:  # extrinsics withheld from the depth
             parts["accuracy"].set_true_camera(stream.meta["camera_to_world"])
+    if "retarget" in parts:
+        _performer_body(source, parts["retarget"])
     only = getattr(args, "only", None)
     if only is None and _suit_without_camera(source):
         only = "imu"  # an imported suit recording: nothing else would make a skeleton
@@ -63,6 +66,22 @@ def _replay(target: str, args, out: Path, video: Path | None = None) -> dict:
     if damage:
         print(f"livecap: {damage}", file=sys.stderr)
     return stats
+
+
+def _performer_body(source, stage) -> None:
+    """A synthetic session's true body for the performer's self-contacts (the retarget stage
+    fits a template to the estimated skeleton otherwise)."""
+    reader = getattr(source, "reader", None)
+    data = reader.body_npz() if reader is not None and stage.contacts else None
+    if data is None:
+        return
+    from live.body.library import body_from_npz_bytes
+    from live.core.errors import FormatError
+
+    try:
+        stage.set_performer_body(body_from_npz_bytes(data))
+    except FormatError:
+        pass  # a damaged attachment: the fitted template serves
 
 
 def _exit_for(stats: dict) -> int:

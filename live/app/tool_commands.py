@@ -56,6 +56,14 @@ def cmd_eval(args) -> int:
                 raise UserInputError(f"no such session: {path}")
         report = evaluate_sessions([str(p) for p in args.sessions], model_path=args.model,
                                    compare_baseline=args.compare == "baseline", threads=args.threads, lag=args.lag)
+    elif args.what == "contacts":
+        from live.body.avatar import load_avatar
+        from live.evaluation.contacts import evaluate_contacts, format_report
+
+        if not Path(args.motion).is_file():
+            raise UserInputError(f"no such motion file: {args.motion}")
+        report = evaluate_contacts(args.motion, load_avatar(args.source_body), load_avatar(args.target_body),
+                                   from_=args.from_, retarget=args.retarget, max_frames=args.max_frames, lag=args.lag)
     else:
         from live.body.library import load_body
         from live.evaluation.retarget import evaluate_retarget, format_report

@@ -37,16 +37,25 @@ class RetargetStage:
     The performer's rest skeleton is unknown live: it is estimated from the skeletons seen
     (median bone lengths), refined over the first ``warmup`` frames, then frozen so that the
     avatar's proportions stay steady. ``skin=True`` also poses the avatar mesh (LBS).
+
+    contacts: "auto" (the default: on when the avatar has a mesh), "on" or "off": keep the
+    performer's self-contacts on the avatar and its hands and forearms out of its body
+    (live/retarget/contacts_retargeter.py). The performer's body surface is the one given by
+    ``set_performer_body`` (a synthetic session's true body) or a template fitted to the
+    estimated skeleton.
     """
 
     name = "retarget"
 
     def __init__(self, avatar, *, kind: str = "analytic", foot_lock: bool = True, hand_ik: bool = False,
-                 skin: bool = False, warmup: int = 30, use_truth: bool = False, model_path=None):
-        if kind not in ("analytic", "learned"):
-            from live.core.errors import UserInputError
+                 skin: bool = False, warmup: int = 30, use_truth: bool = False, model_path=None,
+                 contacts: str = "auto"):
+        from live.core.errors import UserInputError
 
+        if kind not in ("analytic", "learned"):
             raise UserInputError(f"--retarget must be analytic or learned, not {kind!r}")
+        if contacts not in ("auto", "on", "off"):
+            raise UserInputError(f"--contacts must be on or off, not {contacts!r}")
         self.avatar = avatar
         self.kind = kind
         self.foot_lock = foot_lock
@@ -63,15 +72,68 @@ class RetargetStage:
         mean_rest_template()
         self._seen: list[np.ndarray] = []
         self._retargeter: Retargeter | None = None
+        # The avatar's and the performer's surfaces for self-contacts, built (or read from the
+        # cache) now rather than on the first frame.
+        self._contacts = self._contact_surfaces(contacts)
+
+    def _contact_surfaces(self, mode: str):
+        if mode == "off":
+            return None
+        if len(getattr(self.avatar, "faces", ())) == 0:
+            if mode == "on":
+                from live.core.errors import UserInputError
+
+                raise UserInputError("--contacts on needs an avatar with a mesh (this one is a point cloud)")
+            return None
+        from live.core.errors import UserInputError
+        from live.retarget.contacts_retargeter import PerformerSurfaces
+        from live.retarget.contacts_surface import body_surface
+
+        try:
+            return [body_surface(self.avatar), PerformerSurfaces()]
+        except UserInputError as exc:
+            if mode == "on":
+                raise
+            import logging
+
+            logging.getLogger(__name__).warning("self-contacts off: %s", exc)
+            return None
+
+    @property
+    def contacts(self) -> bool:
+        """True when the stage keeps self-contacts."""
+        return self._contacts is not None
+
+    def set_performer_body(self, body) -> None:
+        """The performer's true body (a synthetic session's), for its self-contacts; before the
+        first frame."""
+        if self._contacts is not None and len(getattr(body, "faces", ())):
+            from live.retarget.contacts_surface import body_surface
+
+            self._contacts[1] = body_surface(body)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Self-contact counts (stats.json): frames with a hand contact, frames corrected."""
+        return dict(getattr(self._retargeter, "counters", {})) if self._contacts is not None else {}
 
     def _make(self, rest: np.ndarray) -> Retargeter:
+        inner: Retargeter
         if self.kind == "learned":
             from live.retarget.learned import LearnedRetargeter
 
-            return LearnedRetargeter(self.model_path, rest, self.avatar.rest_joints, foot_lock=self.foot_lock, floor=True)
-        from live.retarget.retargeter import AnalyticRetargeter
+            inner = LearnedRetargeter(self.model_path, rest, self.avatar.rest_joints, foot_lock=self.foot_lock,
+                                      floor=True)
+        else:
+            from live.retarget.retargeter import AnalyticRetargeter
 
-        return AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock, hand_ik=self.hand_ik)
+            inner = AnalyticRetargeter(rest, self.avatar.rest_joints, foot_lock=self.foot_lock, hand_ik=self.hand_ik)
+        if self._contacts is None:
+            return inner
+        from live.retarget.contacts_retargeter import ContactRetargeter
+
+        target, performer = self._contacts
+        return ContactRetargeter(inner, target, self.avatar.rest_joints, rest, performer)
 
     def _source_frame(self, result: FrameResult) -> SkeletonFrame | None:
         """The performer's skeleton to retarget: the frame's (with ``use_truth`` its ground-truth

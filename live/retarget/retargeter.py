@@ -77,6 +77,7 @@ class AnalyticRetargeter:
         self.clock.reset()
         # Global rotations (22, 3, 3) of the last step's target pose (for skinning).
         self.last_globals: np.ndarray | None = None
+        self.last_source_globals: np.ndarray | None = None
 
     def step(
         self, pose: np.ndarray, root: np.ndarray | None = None, dt: float | None = None
@@ -106,6 +107,9 @@ class AnalyticRetargeter:
         else:
             raise UserInputError(f"a frame is (22, 3) joints or (22, 4) rotations, got {pose.shape}")
         glob, loc, pos = glob[0], loc[0].copy(), pos[0]
+        # The performer's own global rotations (the rotation copy's, before any IK): self-contacts
+        # are found on the performer's pose (live/retarget/contacts_retargeter.py).
+        self.last_source_globals = glob.copy()
         if self.hand_ik:
             if src is None:
                 src, _ = forward_kinematics_matrices(quat_to_matrix(pose)[None], src_root[None], self.source.offsets)

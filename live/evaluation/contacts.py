@@ -1,0 +1,240 @@
+"""Self-contacts and interpenetration of retargeting: ``livecap eval contacts``.
+
+A motion is put on the performer's body and retargeted onto the avatar as ``livecap eval retarget`` does (from the exact
+skeleton, or through the virtual camera and the skeleton stage), once with the self-contact
+correction (live/retarget/contacts_retargeter.py) and once without. Every mesh is skinned and
+measured exactly, frame by frame (open3d closest points on the posed skin, not the runtime's
+grids):
+
+* **hand contacts**: for each hand and each region (the other hand, the other arm, head and
+  neck, torso, legs) the signed distance from the hand's skin to the region's. A pair touches when within
+  ``TOUCH`` (1 cm, sinking in included). Recall: of the performer's touching pairs, the share
+  the avatar keeps within ``KEEP`` (2 cm); precision: of the avatar's touching pairs, the share
+  within ``KEEP`` on the performer.
+* **penetration**: per frame and arm, the deepest point of the hand and forearm skin inside the
+  torso, head, legs or the other arm (hand, forearm, upper arm) (mm). Mean over the (frame, arm) pairs that sink in by at
+  least ``SINK`` (1 mm), max over all; ``penetrating_share`` says how many pairs that is.
+* **joints**: MPJPE, PA-MPJPE, Acc, PA-Acc against the rotation copy on the avatar, as in
+  ``livecap eval retarget`` (live/evaluation/retarget.py).
+
+The performer's contacts are those of its true body posed by its true 22-joint skeleton. A
+skeleton has no hand rotation: hands follow their forearms, on the performer as on the avatar
+(with the motion's own wrist rotations, which no skeleton-driven retargeter receives, a walk's
+swinging hands brush the thighs where the skeleton's pass 3-5 cm from them). The surface the
+correction sees: the true body from exact skeletons, or, from depth, a template body fitted to
+the estimated skeleton (what a live performer gets).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from live.core.errors import UserInputError
+from live.core.skeleton import JOINT_INDEX
+
+TOUCH = 0.010
+KEEP = 0.020
+SINK = 0.001
+#: The gap recorded for a hand far from a region (m).
+FAR = 1.0
+#: Regions a hand may touch, by the joints whose dominant-weight vertices make them.
+REGIONS = {"hand": None, "arm": None, "head": ("neck", "head"),
+           "torso": ("pelvis", "spine1", "spine2", "spine3", "left_collar", "right_collar"),
+           "legs": ("left_hip", "right_hip", "left_knee", "right_knee")}
+SIDES = ("left", "right")
+
+
+@dataclass(frozen=True)
+class BodyRegions:
+    """A body's skin cut by dominant weight: vertices of each hand and forearm, faces of each
+    region (a face belongs where two of its vertices do: the regions' skins, in REGIONS' order,
+    the hand's being the left then the right) and their open edges' vertices."""
+
+    hand: tuple[np.ndarray, ...]
+    forearm: tuple[np.ndarray, ...]
+    skins: dict[str, np.ndarray]
+    borders: dict[str, np.ndarray]
+
+    @classmethod
+    def of(cls, body) -> BodyRegions:
+        from live.retarget.contacts_surface import border_vertices
+
+        dominant = np.asarray(body.weights).argmax(1)
+        faces = np.asarray(body.faces, np.int64)
+
+        def members(names) -> np.ndarray:
+            return np.isin(dominant, [JOINT_INDEX[n] for n in names])
+
+        groups = {f"{s}_hand": (f"{s}_wrist",) for s in SIDES}
+        groups.update({f"{s}_arm": (f"{s}_shoulder", f"{s}_elbow") for s in SIDES})
+        groups.update({k: v for k, v in REGIONS.items() if v is not None})
+        skins = {k: faces[members(v)[faces].sum(1) >= 2] for k, v in groups.items()}
+        return cls(hand=tuple(np.flatnonzero(members((f"{s}_wrist",))) for s in SIDES),
+                   forearm=tuple(np.flatnonzero(members((f"{s}_elbow",))) for s in SIDES),
+                   skins=skins, borders={k: border_vertices(f, len(dominant)) for k, f in skins.items()})
+
+
+def contact_geometry(regions: BodyRegions, faces: np.ndarray, vertices: np.ndarray, progress=None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame of posed vertices (T, V, 3): hand gaps (T, 2 hands, 4 regions as REGIONS, m)
+    and the arms' deepest penetration (T, 2 arms, m, >= 0)."""
+    from live.retarget.contacts_surface import signed_distances, vertex_normals, winding_numbers
+
+    t_count = len(vertices)
+    gaps = np.full((t_count, 2, len(REGIONS)), FAR)
+    depth = np.zeros((t_count, 2))
+    arms = [np.concatenate([regions.hand[a], regions.forearm[a]]) for a in range(2)]
+    hands = [len(h) for h in regions.hand]
+    for t in range(t_count):
+        v = np.asarray(vertices[t], np.float64)
+        normals = None
+        worst = np.zeros(2)
+        boxes = {k: (v[f.ravel()].min(0) - KEEP, v[f.ravel()].max(0) + KEEP) for k, f in regions.skins.items()}
+        for r, name in enumerate(REGIONS):
+            for a in range(2):
+                skin_name = f"{SIDES[1 - a]}_{name}" if name in ("hand", "arm") else name
+                skin = regions.skins[skin_name]
+                # Only points near the region's box can touch or sink in: the others stay FAR.
+                lo, hi = boxes[skin_name]
+                pts = v[arms[a]]
+                near = np.all((pts > lo) & (pts < hi), axis=1)
+                if not near.any():
+                    continue
+                if normals is None:
+                    normals = vertex_normals(v, faces)
+                d = np.full(len(pts), FAR)
+                d[near] = signed_distances(v, normals, skin, pts[near], regions.borders[skin_name])[0]
+                # Inside only where the skin winds about the point: a fold of the skinned mesh
+                # turns the closest face's normal inward far from any real penetration.
+                inside = np.flatnonzero(d < 0.0)
+                if len(inside):
+                    outside = winding_numbers(v, skin, pts[inside]) < 0.3
+                    d[inside[outside]] *= -1.0
+                gaps[t, a, r] = d[: hands[a]].min()
+                worst[a] = min(worst[a], float(d.min()))
+        depth[t] = -worst
+        if progress is not None:
+            progress(t + 1, t_count)
+    return gaps, depth
+
+
+def contact_scores(source_gaps: np.ndarray, avatar_gaps: np.ndarray, depth: np.ndarray) -> dict[str, Any]:
+    """Recall, precision (nan when there is nothing to count) and penetration of one avatar run."""
+    src_touch, ava_touch = source_gaps <= TOUCH, avatar_gaps <= TOUCH
+    kept = (avatar_gaps <= KEEP) & src_touch
+    true = (source_gaps <= KEEP) & ava_touch
+    sinking = depth >= SINK
+    return {
+        "hand_contact_recall": float(kept.sum() / src_touch.sum()) if src_touch.any() else float("nan"),
+        "hand_contact_precision": float(true.sum() / ava_touch.sum()) if ava_touch.any() else float("nan"),
+        "penetration_mean_mm": float(1000 * depth[sinking].mean()) if sinking.any() else 0.0,
+        "penetration_max_mm": float(1000 * depth.max()) if depth.size else 0.0,
+        "penetrating_share": float(sinking.mean()) if depth.size else 0.0,
+        "source_hand_contacts": int(src_touch.sum()),
+        "avatar_hand_contacts": int(ava_touch.sum()),
+    }
+
+
+def joint_scores(joints: np.ndarray, gt_joints: np.ndarray) -> dict[str, float]:
+    from live.core.metrics import acceleration_error, mpjpe, pa_acceleration_error, pa_mpjpe
+
+    return {"mpjpe_mm": 1000 * mpjpe(joints, gt_joints), "pa_mpjpe_mm": 1000 * pa_mpjpe(joints, gt_joints),
+            "acc_mm_per_frame2": 1000 * acceleration_error(joints, gt_joints),
+            "pa_acc_mm_per_frame2": 1000 * pa_acceleration_error(joints, gt_joints)}
+
+
+def run_retargeter(rt, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(root T x 3, rotations T x 22 x 4, joints T x 22 x 3) of source joints through ``rt``."""
+    return tuple(np.stack(x) for x in zip(*(rt.step(j) for j in joints)))  # type: ignore[return-value]
+
+
+def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton", retarget: str = "analytic", *,
+                      fps: float = 30.0, max_frames: int | None = None, camera: str = "oak-d", seed: int = 0,
+                      lag: int = 0, settings=None, progress=None) -> dict[str, Any]:
+    """The correction on and off for one motion from a source body to a target body.
+
+    motion: a Motion or a BVH path (prepared as ``livecap eval retarget`` does); bodies: Body or
+    a spec. Returns the corrected figures at the top level (``hand_contact_recall``,
+    ``hand_contact_precision``, ``penetration_mean_mm``, ``penetration_max_mm``, ``mpjpe_mm``,
+    and more), the same without the correction under ``"off"``, the performer's own penetration
+    under ``"source"``, and the run's names and settings."""
+    from live.body.library import load_body
+    from live.body.skinning import lbs
+    from live.evaluation.retarget import _on_body, make_retargeter, prepare_motion, source_skeletons
+    from live.motion.rig_mapping import load_motion
+    from live.retarget.analytic import local_rotations_from_joints
+    from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
+    from live.retarget.contacts_self import ContactSettings
+    from live.retarget.contacts_surface import body_surface
+
+    if from_ not in ("skeleton", "depth"):
+        raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
+    if retarget not in ("analytic", "learned"):
+        raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+    if isinstance(motion, (str, Path)):
+        motion = load_motion(motion)
+    motion = prepare_motion(motion, fps, max_frames)
+    src = source_body if hasattr(source_body, "rest_joints") else load_body(source_body)
+    tgt = target_body if hasattr(target_body, "rest_joints") else load_body(target_body)
+    if len(tgt.faces) == 0 or len(src.faces) == 0:
+        raise UserInputError("contacts are measured on meshes: both bodies need faces")
+    settings = settings or ContactSettings()
+    joints, src_rest, found = source_skeletons(motion, src, from_, camera=camera, seed=seed, lag=lag) \
+        if from_ == "depth" else source_skeletons(motion, src, from_)
+    gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
+    src_root, src_true = _on_body(motion, src.rest_joints)
+    performer = body_surface(src) if from_ == "skeleton" else PerformerSurfaces()
+    runs = {"off": run_retargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), joints)}
+    keeper = ContactRetargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), body_surface(tgt),
+                               tgt.rest_joints, src_rest, performer, fps=fps, settings=settings)
+    runs["on"] = run_retargeter(keeper, joints)
+    src_regions, tgt_regions = BodyRegions.of(src), BodyRegions.of(tgt)
+    # The performer as its skeleton shows it: the true joints' rotations, hands along the forearms.
+    src_pose = local_rotations_from_joints(src_true, src.rest_joints)
+    src_verts = lbs(src.vertices, src.weights, src.rest_joints, src_pose, src_root)
+    src_gaps, src_depth = contact_geometry(src_regions, np.asarray(src.faces, np.int64), src_verts, progress)
+    out: dict[str, Any] = {}
+    for name, (root, rot, pred) in runs.items():
+        verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, rot, root)
+        gaps, depth = contact_geometry(tgt_regions, np.asarray(tgt.faces, np.int64), verts, progress)
+        scores = contact_scores(src_gaps, gaps, depth)
+        scores.update(joint_scores(pred, gt_joints))
+        out[name] = scores
+    result = dict(out["on"])
+    result.update(off=out["off"], source={"penetration_mean_mm": contact_scores(src_gaps, src_gaps, src_depth)
+                                          ["penetration_mean_mm"], "penetration_max_mm": float(1000 * src_depth.max())},
+                  frames=int(motion.num_frames), fps=float(fps), motion=motion.name,
+                  source_body=getattr(src, "name", "source"), target_body=getattr(tgt, "name", "target"),
+                  retarget=retarget, found=float(found.mean()), lag=lag, **{"from": from_},
+                  corrected_frames=int(keeper.counters["frames_corrected"]))
+    return result
+
+
+_COLUMNS = (("hand_contact_recall", "recall", "{:.1%}"), ("hand_contact_precision", "precision", "{:.1%}"),
+            ("penetration_mean_mm", "pen. mean mm", "{:.1f}"), ("penetration_max_mm", "pen. max mm", "{:.1f}"),
+            ("penetrating_share", "sinking", "{:.1%}"), ("mpjpe_mm", "MPJPE mm", "{:.1f}"),
+            ("pa_mpjpe_mm", "PA-MPJPE mm", "{:.1f}"), ("acc_mm_per_frame2", "Acc", "{:.2f}"))
+
+
+def _fmt(value, pattern: str) -> str:
+    return "-" if value is None or (isinstance(value, float) and np.isnan(value)) else pattern.format(value)
+
+
+def format_report(results: dict[str, Any] | list[dict[str, Any]]) -> str:
+    """A Markdown table: per result, a row with the correction and one without."""
+    rows = [results] if isinstance(results, dict) else list(results)
+    head = "| motion | source -> target | from | contacts | " + " | ".join(c[1] for c in _COLUMNS) + " |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        for label, figures in (("on", r), ("off", r["off"])):
+            cells = " | ".join(_fmt(figures.get(k), p) for k, p in ((c[0], c[2]) for c in _COLUMNS))
+            lines.append(f"| {r['motion']} | {r['source_body']} -> {r['target_body']} | {r['from']} | {label} | {cells} |")
+    lines.append("")
+    lines.append(f"Hand contacts: touching within {TOUCH * 100:g} cm, kept within {KEEP * 100:g} cm; penetration of "
+                 f"hands and forearms, mean over the (frame, arm) pairs sinking in by {SINK * 1000:g} mm or more; "
+                 "Acc in mm/frame^2.")
+    return "\n".join(lines)

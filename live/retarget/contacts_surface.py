@@ -1,0 +1,611 @@
+"""A body's surface for self-contacts: signed distance grids of its parts and probe points on its
+hands and forearms, built once per body (open3d), queried per frame with numpy.
+
+The skin is cut into rigid parts by the skinning weights (a vertex belongs to a part when the
+part's joints weigh at least ``PART_WEIGHT`` in it, so neighbouring parts overlap across their
+seams): pelvis, the three spine segments, the collars, head and neck, thighs, shins, hands. Each
+part gets a grid of the signed distance to its own skin, in the rest pose and relative to the
+joint that carries it (the part moves rigidly with that joint's global rotation; near joints that
+bend a lot the skinned surface departs from this by up to about a centimetre, which the contact
+keeper's clearance margin absorbs). Each cell also stores the distance's gradient, so a query
+gives the distance and the direction out of the part, both continuous (trilinear in the cell).
+
+The sign of a part's distance comes from the skin's normals interpolated at the closest point:
+negative inside. Where the closest point lies on the part's open edge (the cut to a neighbouring
+part) the distance counts as outside: that side is the neighbour's, which covers it.
+
+Probe points are spread over each hand (``HAND_PROBES``) and forearm (``FOREARM_PROBES``) by
+farthest-point sampling; they move rigidly with the wrist and the elbow.
+
+A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
+parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
+performer's estimated skeleton needs no new grids. Built models are kept in memory and in the
+cache folder (``contact_surfaces``), keyed by the body's arrays.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from live.core import assets
+from live.core.errors import UserInputError
+from live.core.skeleton import JOINT_INDEX, pelvis_height
+
+#: Grid cell (m) and the margin of a part's grid around its skin (m): more than every contact
+#: or clearance distance in use.
+GRID_CELL = 0.015
+GRID_MARGIN = 0.06
+#: Probes farther than this (m) outside a part's skin box are not sampled: their gap counts as
+#: FAR, beyond every contact, clearance and broad-phase distance.
+BAND = 0.05
+FAR = 0.1
+#: Weight of a part's joints from which a vertex is in the part.
+PART_WEIGHT = 0.25
+#: Probes per hand and per forearm (the same count: probe sets are measured as one array).
+PROBE_COUNT = 32
+#: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
+MODEL_VERSION = 4
+
+
+@dataclass(frozen=True)
+class PartSpec:
+    """A rigid part of the skin: name, the joints whose weights mark its vertices, the joint that
+    carries it, and the region it belongs to."""
+
+    name: str
+    joints: tuple[str, ...]
+    frame: str
+    region: str
+
+
+PARTS: tuple[PartSpec, ...] = (
+    PartSpec("pelvis", ("pelvis",), "pelvis", "torso"),
+    PartSpec("spine1", ("spine1",), "spine1", "torso"),
+    PartSpec("spine2", ("spine2",), "spine2", "torso"),
+    PartSpec("spine3", ("spine3",), "spine3", "torso"),
+    PartSpec("left_collar", ("left_collar",), "left_collar", "torso"),
+    PartSpec("right_collar", ("right_collar",), "right_collar", "torso"),
+    PartSpec("head", ("neck", "head"), "neck", "head"),
+    PartSpec("left_thigh", ("left_hip",), "left_hip", "left_leg"),
+    PartSpec("right_thigh", ("right_hip",), "right_hip", "right_leg"),
+    PartSpec("left_shin", ("left_knee",), "left_knee", "left_leg"),
+    PartSpec("right_shin", ("right_knee",), "right_knee", "right_leg"),
+    PartSpec("left_hand", ("left_wrist",), "left_wrist", "left_hand"),
+    PartSpec("right_hand", ("right_wrist",), "right_wrist", "right_hand"),
+    PartSpec("left_upper_arm", ("left_shoulder",), "left_shoulder", "left_arm"),
+    PartSpec("right_upper_arm", ("right_shoulder",), "right_shoulder", "right_arm"),
+    PartSpec("left_forearm", ("left_elbow",), "left_elbow", "left_arm"),
+    PartSpec("right_forearm", ("right_elbow",), "right_elbow", "right_arm"),
+)
+#: What a hand or forearm touches: the union of its parts' skins (their distance: the smallest).
+REGIONS: tuple[str, ...] = ("torso", "head", "left_leg", "right_leg", "left_hand", "right_hand", "left_arm",
+                            "right_arm")
+
+
+@dataclass(frozen=True)
+class ProbeSpec:
+    """Points that may touch or sink into the body: name, the joint carrying them (PROBE_COUNT
+    of its dominant-weight vertices are sampled), side, kind (``hand`` or ``forearm``)."""
+
+    name: str
+    joint: str
+    side: str
+    kind: str
+
+
+PROBES: tuple[ProbeSpec, ...] = (
+    ProbeSpec("left_hand", "left_wrist", "left", "hand"),
+    ProbeSpec("right_hand", "right_wrist", "right", "hand"),
+    ProbeSpec("left_forearm", "left_elbow", "left", "forearm"),
+    ProbeSpec("right_forearm", "right_elbow", "right", "forearm"),
+)
+
+
+@dataclass(frozen=True)
+class ProbeTargets:
+    """What one probe set is tested against: its regions (indices into REGIONS) and, in the same
+    order, each region's parts (indices into PARTS)."""
+
+    regions: tuple[int, ...]
+    parts: tuple[tuple[int, ...], ...]
+
+    @classmethod
+    def of(cls, probe: ProbeSpec) -> ProbeTargets:
+        """Every region but the probe set's own arm and hand: torso, head, legs, the other hand and
+        arm (a forearm also skips its own collar, next to its elbow when the arm is raised)."""
+        regions = [r for r in REGIONS if r not in (f"{probe.side}_hand", f"{probe.side}_arm")]
+        skip = {f"{probe.side}_collar"} if probe.kind == "forearm" else set()
+        parts = [tuple(k for k, p in enumerate(PARTS) if p.region == r and p.name not in skip) for r in regions]
+        return cls(tuple(REGIONS.index(r) for r in regions), tuple(parts))
+
+
+TARGETS: tuple[ProbeTargets, ...] = tuple(ProbeTargets.of(p) for p in PROBES)
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceModel:
+    """The grids and probes of one body (built by ``build_surface_model``).
+
+    data (M, 4) float32: per cell the signed distance and its gradient, all parts packed;
+    nearest (M,): per cell the vertex nearest its closest skin point. Per part k: frame joint
+    ``frames[k]``, grid corner ``lo[k]`` relative to that joint's rest position, ``dims[k]``
+    cells per axis, ``base[k]`` first row in data, bounding sphere ``centre[k]`` / ``radius[k]``
+    (relative to the joint). The skin: rest ``vertices`` (V, 3) with their four heaviest joints
+    ``skin_joints`` (V, 4) and weights ``skin_weights`` (V, 4). probes[i]: the vertices of probe
+    set i. rest_joints: the rest skeleton the model was built on."""
+
+    data: np.ndarray
+    nearest: np.ndarray
+    frames: np.ndarray
+    lo: np.ndarray
+    dims: np.ndarray
+    base: np.ndarray
+    centre: np.ndarray
+    radius: np.ndarray
+    vertices: np.ndarray
+    skin_joints: np.ndarray
+    skin_weights: np.ndarray
+    probes: tuple[np.ndarray, ...]
+    rest_joints: np.ndarray
+    cell: float
+
+    def __post_init__(self) -> None:
+        # Per part: the 8 cell corners' row offsets and the strides, for one np.take per query
+        # (a dozen times faster than fancy indexing of the (M, 4) array); the grids in float64,
+        # so that the blend is one matmul without conversions.
+        dims = np.asarray(self.dims, np.int64)
+        sz, syz = dims[:, 2], dims[:, 1] * dims[:, 2]
+        corners = np.stack([np.zeros_like(sz), sz, syz, syz + sz], axis=1)
+        object.__setattr__(self, "_corners", np.concatenate([corners, corners + 1], axis=1))
+        object.__setattr__(self, "_strides", np.stack([syz, sz, np.ones_like(sz)], axis=1).astype(np.float64))
+        object.__setattr__(self, "_top", dims - 1.000001)
+        object.__setattr__(self, "_data", np.asarray(self.data, np.float64))
+        dense = np.zeros((len(self.vertices), len(self.rest_joints)))
+        np.put_along_axis(dense, np.asarray(self.skin_joints, np.int64), self.skin_weights, axis=1)
+        object.__setattr__(self, "dense_weights", dense)
+        # Each part's skin box (the grid less its margin), relative to its joint: centre, half size.
+        top = self.lo + (dims - 1) * self.cell - GRID_MARGIN
+        bottom = self.lo + GRID_MARGIN
+        object.__setattr__(self, "box_centre", 0.5 * (top + bottom))
+        object.__setattr__(self, "box_half", 0.5 * (top - bottom))
+
+    def sample(self, parts: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distance and gradient (Q, 4) (gradient not unit) of parts[q] at local[q] (Q, 3),
+        points relative to the part's joint in the model's rest units, and the vertex nearest
+        each point's closest skin point (Q,). Beyond a grid's edge the distance grows by the
+        distance to the edge (continuous; the margin already puts it past every contact distance)."""
+        take = np.take
+        g = (local - take(self.lo, parts, axis=0)) * (1.0 / self.cell)
+        clipped = np.clip(g, 0.0, take(self._top, parts, axis=0))
+        beyond = g - clipped
+        i0 = np.floor(clipped)
+        f = clipped - i0
+        base = take(self.base, parts)
+        strides = take(self._strides, parts, axis=0)
+        row = base + np.einsum("qi,qi->q", i0, strides).astype(np.int64)
+        vals = take(self._data, row[:, None] + take(self._corners, parts, axis=0), axis=0)  # (Q, 8, 4)
+        fx, fy, fz = f[:, 0:1], f[:, 1:2], f[:, 2:3]
+        wxy = np.concatenate([(1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy], axis=1)
+        w = np.concatenate([wxy * (1 - fz), wxy * fz], axis=1)  # corners z=0 then z=1
+        out = np.matmul(w[:, None, :], vals)[:, 0]
+        out[:, 0] += np.sqrt(np.einsum("qi,qi->q", beyond, beyond)) * self.cell
+        near_row = base + np.einsum("qi,qi->q", np.rint(clipped), strides).astype(np.int64)
+        return out, take(self.nearest, near_row)
+
+
+@dataclass(frozen=True, eq=False)
+class BodySurface:
+    """A SurfaceModel placed on a rest skeleton: ``scale`` times the model's size about each joint."""
+
+    model: SurfaceModel
+    scale: float = 1.0
+
+    def fitted(self, rest_joints: np.ndarray) -> BodySurface:
+        """The same body resized to another rest skeleton (by the ratio of pelvis heights)."""
+        return BodySurface(self.model, pelvis_height(rest_joints) / pelvis_height(self.model.rest_joints))
+
+    def transforms(self, glob: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """(22, 12) skinning transforms of a pose, rows [A (9) | b (3)]: a rest vertex v of the
+        model goes to A v + b (A = scale G, b = p - scale G r)."""
+        a = glob * self.scale
+        out = np.empty((len(glob), 12))
+        out[:, :9] = a.reshape(-1, 9)
+        out[:, 9:] = pos - np.einsum("jab,jb->ja", a, self.model.rest_joints)
+        return out
+
+    def skin(self, glob: np.ndarray, pos: np.ndarray, vertices: np.ndarray,
+             transforms: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) posed positions of skin vertices (indices (N,)) by linear blend skinning in a
+        pose (glob (22, 3, 3), pos (22, 3); ``transforms``: ``self.transforms`` of it, when known).
+        The 12 transform coefficients are blended with one product, as live/body/skinning.py does."""
+        t = self.transforms(glob, pos) if transforms is None else transforms
+        blend = np.take(self.model.dense_weights, vertices, axis=0) @ t  # (N, 12)
+        v = np.take(self.model.vertices, vertices, axis=0)
+        return (blend[:, 0:9:3] * v[:, 0:1] + blend[:, 1:9:3] * v[:, 1:2] + blend[:, 2:9:3] * v[:, 2:3]
+                + blend[:, 9:])
+
+    def probe_points(self, glob: np.ndarray, pos: np.ndarray, probe: int) -> np.ndarray:
+        """(N, 3) world positions of one probe set in a pose (skinned like the mesh)."""
+        return self.skin(glob, pos, self.model.probes[probe])
+
+    def distances(self, glob: np.ndarray, pos: np.ndarray, points: np.ndarray, parts: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Signed distances (K, N) of world points (N, 3) to parts (K,) in a pose, with each part
+        moved rigidly by its joint; the unit world directions out of each part (K, N, 3); the
+        vertex nearest each closest skin point (K, N)."""
+        m = self.model
+        frames = np.take(m.frames, parts)
+        rot = np.take(glob, frames, axis=0)  # (K, 3, 3)
+        rel = points[None, :, :] - np.take(pos, frames, axis=0)[:, None, :]
+        local = np.matmul(rel, rot) * (1.0 / self.scale)  # rows: R^T (p - t)
+        k, n = len(parts), len(points)
+        out, nearest = m.sample(np.repeat(parts, n), local.reshape(-1, 3))
+        out = out.reshape(k, n, 4)
+        grad = np.matmul(out[..., 1:], np.swapaxes(rot, 1, 2))
+        norm = np.sqrt(np.einsum("kni,kni->kn", grad, grad))
+        return out[..., 0] * self.scale, grad / np.maximum(norm, 1e-9)[..., None], nearest.reshape(k, n)
+
+    def skin_offsets(self, glob: np.ndarray, pos: np.ndarray, vertices: np.ndarray, parts: np.ndarray,
+                     transforms: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3): how far skinning puts vertices (N,) from where their parts (N,) moved rigidly
+        would: what a rigid part's distance misses where joints blend (a bent spine's belly)."""
+        m = self.model
+        frames = np.take(m.frames, parts)
+        rest = (np.take(m.vertices, vertices, axis=0) - np.take(m.rest_joints, frames, axis=0)) * self.scale
+        rigid = np.einsum("nij,nj->ni", np.take(glob, frames, axis=0), rest) + np.take(pos, frames, axis=0)
+        return self.skin(glob, pos, vertices, transforms) - rigid
+
+    def near_parts(self, glob: np.ndarray, pos: np.ndarray, centre: np.ndarray, radius: float,
+                   parts: tuple[int, ...], reach: float) -> np.ndarray:
+        """The parts among ``parts`` whose bounding sphere comes within ``reach`` of a sphere
+        (centre (3,), radius) in a pose: the broad phase before ``distances``."""
+        m = self.model
+        idx = np.asarray(parts, np.int64)
+        frames = m.frames[idx]
+        centres = pos[frames] + np.einsum("kij,kj->ki", glob[frames], m.centre[idx] * self.scale)
+        gap = np.sqrt(((centres - centre) ** 2).sum(-1)) - m.radius[idx] * self.scale - radius
+        return idx[gap < reach]
+
+
+# ------------------------------------------------------------------------------------- building
+
+
+def _farthest_points(points: np.ndarray, count: int) -> np.ndarray:
+    """Indices of ``count`` points spread by farthest-point sampling (deterministic: starts at the
+    point farthest from the centroid)."""
+    count = min(count, len(points))
+    chosen = [int(np.argmax(((points - points.mean(0)) ** 2).sum(-1)))]
+    dist = ((points - points[chosen[0]]) ** 2).sum(-1)
+    while len(chosen) < count:
+        nxt = int(np.argmax(dist))
+        chosen.append(nxt)
+        dist = np.minimum(dist, ((points - points[nxt]) ** 2).sum(-1))
+    return np.array(chosen, np.int64)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Angle-weighted vertex normals (unit) of a triangle mesh: the pseudo-normals that tell
+    inside from outside at a vertex (Baerentzen and Aanaes)."""
+    v = vertices[faces]  # (F, 3, 3)
+    fn = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    fn /= np.maximum(np.sqrt((fn * fn).sum(1)), 1e-20)[:, None]
+    out = np.zeros_like(vertices)
+    count = len(vertices)
+    for c in range(3):
+        a = v[:, (c + 1) % 3] - v[:, c]
+        b = v[:, (c + 2) % 3] - v[:, c]
+        cos = (a * b).sum(1) / np.maximum(np.sqrt((a * a).sum(1) * (b * b).sum(1)), 1e-20)
+        weighted = fn * np.arccos(np.clip(cos, -1.0, 1.0))[:, None]
+        for i in range(3):  # bincount: a scatter-add many times faster than np.add.at
+            out[:, i] += np.bincount(faces[:, c], weights=weighted[:, i], minlength=count)
+    return out / np.maximum(np.sqrt((out * out).sum(1)), 1e-20)[:, None]
+
+
+def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """(Q, 3) barycentric weights of points p on triangles (a, b, c)."""
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = np.maximum(d00 * d11 - d01 * d01, 1e-30)
+    wb = (d11 * d20 - d01 * d21) / den
+    wc = (d00 * d21 - d01 * d20) / den
+    return np.stack([1.0 - wb - wc, wb, wc], axis=1)
+
+
+def border_vertices(faces: np.ndarray, count: int) -> np.ndarray:
+    """(count,) bool: vertices on the open edge of a skin made of ``faces`` (edges of one face)."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    border = np.zeros(count, bool)
+    border[uniq[counts == 1].ravel()] = True
+    return border
+
+
+def signed_distances(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, points: np.ndarray,
+                     border: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed distances (Q,) of points (Q, 3) to the skin made of ``faces`` of a mesh (vertices,
+    unit vertex normals), the unit directions out of it (Q, 3) and the vertex nearest each
+    closest point (Q,). Negative inside, by the normals interpolated at the closest point; a
+    closest point on the skin's open edge (where its faces end; ``border``:
+    ``border_vertices(faces)``, computed when not given) counts as outside."""
+    import open3d as o3d
+
+    if border is None:
+        border = border_vertices(faces, len(vertices))
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32))
+    mesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(faces, np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(mesh)
+    hit = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, np.float32)))
+    closest = hit["points"].numpy().astype(np.float64)
+    tri = faces[hit["primitive_ids"].numpy().astype(np.int64)]
+    bary = barycentric(closest, vertices[tri[:, 0]], vertices[tri[:, 1]], vertices[tri[:, 2]])
+    # Inside or outside: by the face's own normal where the closest point is inside a face (exact),
+    # by the vertex normals interpolated there where it is on an edge or a vertex (the
+    # angle-weighted normals are the pseudo-normals that decide it at a vertex).
+    on_edge = bary < 1e-4
+    corners = vertices[tri]
+    face_n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    smooth = np.where(on_edge.any(1)[:, None], np.einsum("qc,qci->qi", bary, normals[tri]), face_n)
+    gap = points - closest
+    dist = np.sqrt((gap * gap).sum(1))
+    sign = np.where((gap * smooth).sum(1) < 0.0, -1.0, 1.0)
+    # A zero weight puts the point on the opposite edge (two: on a vertex); on the border when
+    # every vertex it lies between is.
+    at_border = on_edge.any(1) & np.where(on_edge, True, border[tri]).all(1)
+    sign[at_border] = 1.0
+    touching = dist < 1e-6
+    smooth /= np.maximum(np.sqrt((smooth * smooth).sum(1)), 1e-20)[:, None]
+    direction = np.where(touching[:, None], smooth, gap / np.maximum(dist, 1e-12)[:, None]) * sign[:, None]
+    direction[at_border & touching] = smooth[at_border & touching]
+    nearest = tri[np.arange(len(tri)), bary.argmax(1)]
+    return sign * dist, direction, nearest
+
+
+def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, chunk: int = 200_000) -> np.ndarray:
+    """Generalised winding numbers (Q,) of points (Q, 3) about a triangle skin (Jacobson, Kavan
+    and Sorkine-Hornung 2013): the summed solid angles of its faces over 4 pi, about 1 inside
+    and 0 outside even where the skin is open or folds over itself (as skinned meshes do at a
+    deeply bent hip), where the closest face's normal can say inside 30 cm away."""
+    out = np.zeros(len(points))
+    corners = vertices[faces]  # (F, 3, 3)
+    step = max(1, chunk // max(len(faces), 1))
+    for start in range(0, len(points), step):
+        p = points[start:start + step]
+        rel = corners[None] - p[:, None, None, :]  # (P, F, 3, 3)
+        a, b, c = rel[..., 0, :], rel[..., 1, :], rel[..., 2, :]
+        la, lb, lc = (np.sqrt((x * x).sum(-1)) for x in (a, b, c))
+        det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
+        den = la * lb * lc + (a * b).sum(-1) * lc + (b * c).sum(-1) * la + (c * a).sum(-1) * lb
+        out[start:start + step] = (2.0 * np.arctan2(det, den)).sum(1) / (4.0 * np.pi)
+    return out
+
+
+def _part_grid(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, origin: np.ndarray,
+               cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Signed distance grid of one part's skin (its faces of the whole mesh): (lo (3,) relative to
+    ``origin``, dims (3,), data (cells, 4), nearest vertex (cells,))."""
+    used = np.unique(faces)
+    lo = vertices[used].min(0) - GRID_MARGIN
+    hi = vertices[used].max(0) + GRID_MARGIN
+    dims = np.ceil((hi - lo) / cell).astype(np.int64) + 1
+    axes = [lo[i] + cell * np.arange(dims[i]) for i in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    dist, direction, nearest = signed_distances(vertices, normals, faces, pts)
+    data = np.concatenate([dist[:, None], direction], axis=1).astype(np.float32)
+    return lo - origin, dims, data, nearest.astype(np.int32)
+
+
+def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
+    """Grids and probes of a body (vertices, faces, weights, rest_joints as live.body.Body)."""
+    vertices = np.asarray(body.vertices, np.float64)
+    faces = np.asarray(body.faces, np.int64)
+    weights = np.asarray(body.weights, np.float64)
+    rest = np.asarray(body.rest_joints, np.float64)
+    if len(faces) == 0:
+        raise UserInputError("self-contacts need an avatar mesh (faces); a point cloud has none")
+    normals = vertex_normals(vertices, faces)
+    blocks, nearest, frames, los, dims, bases, centres, radii = [], [], [], [], [], [], [], []
+    row = 0
+    for spec in PARTS:
+        cols = [JOINT_INDEX[n] for n in spec.joints]
+        member = weights[:, cols].sum(1) >= PART_WEIGHT
+        part_faces = faces[member[faces].any(1)]
+        frame = JOINT_INDEX[spec.frame]
+        if len(part_faces) == 0:
+            raise UserInputError(f"the avatar mesh has no skin weighted to its {spec.name}")
+        lo, dim, data, near = _part_grid(vertices, normals, part_faces, rest[frame], cell)
+        used = vertices[np.unique(part_faces)] - rest[frame]
+        mid = 0.5 * (used.min(0) + used.max(0))
+        blocks.append(data)
+        nearest.append(near)
+        frames.append(frame)
+        los.append(lo)
+        dims.append(dim)
+        bases.append(row)
+        centres.append(mid)
+        radii.append(float(np.sqrt(((used - mid) ** 2).sum(1)).max()))
+        row += len(data)
+    dominant = weights.argmax(1)
+    probes = []
+    for spec in PROBES:
+        members = np.flatnonzero(dominant == JOINT_INDEX[spec.joint])
+        if len(members) < 4:
+            raise UserInputError(f"the avatar mesh has no skin weighted to its {spec.joint}")
+        chosen = members[_farthest_points(vertices[members], PROBE_COUNT)]
+        probes.append(np.resize(chosen, PROBE_COUNT))  # a coarse mesh repeats some
+    # Each vertex's four heaviest joints, renormalised: skinning a few vertices per frame.
+    heavy = np.argsort(-weights, axis=1, kind="stable")[:, :4]
+    heavy_w = np.take_along_axis(weights, heavy, axis=1)
+    heavy_w /= np.maximum(heavy_w.sum(1, keepdims=True), 1e-12)
+    return SurfaceModel(data=np.concatenate(blocks), nearest=np.concatenate(nearest), frames=np.array(frames, np.int64),
+                        lo=np.array(los), dims=np.array(dims, np.int64), base=np.array(bases, np.int64),
+                        centre=np.array(centres), radius=np.array(radii), vertices=vertices.copy(),
+                        skin_joints=heavy.astype(np.int64), skin_weights=heavy_w, probes=tuple(probes),
+                        rest_joints=rest.copy(), cell=float(cell))
+
+
+# -------------------------------------------------------------------------------------- caching
+
+_MEMO_LOCK = threading.Lock()
+_MEMO: dict[str, SurfaceModel] = {}
+_ARRAYS = ("data", "nearest", "frames", "lo", "dims", "base", "centre", "radius", "vertices", "skin_joints",
+           "skin_weights", "rest_joints")
+
+
+def _key(body) -> str:
+    h = hashlib.sha1(f"v{MODEL_VERSION} {GRID_CELL} {GRID_MARGIN} {PART_WEIGHT} {PROBE_COUNT}".encode())
+    for a in (body.vertices, body.faces, body.weights, body.rest_joints):
+        arr = np.ascontiguousarray(a)
+        h.update(str(arr.dtype).encode() + str(arr.shape).encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()[:20]
+
+
+def _save(path: Path, model: SurfaceModel) -> None:
+    arrays = {k: getattr(model, k) for k in _ARRAYS}
+    arrays.update({f"probe{i}": p for i, p in enumerate(model.probes)}, cell=np.array(model.cell))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def _load(path: Path) -> SurfaceModel | None:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            fields = {k: z[k] for k in _ARRAYS}
+            probes = tuple(z[f"probe{i}"] for i in range(len(PROBES)))
+            cell = float(z["cell"])
+    except (OSError, KeyError, ValueError, EOFError):
+        return None  # a damaged or older cache file: built again
+    if len(fields["frames"]) != len(PARTS):
+        return None
+    return SurfaceModel(probes=probes, cell=cell, **fields)
+
+
+def surface_model(body) -> SurfaceModel:
+    """The body's SurfaceModel: from memory, from the cache folder, or built (about a second)."""
+    key = _key(body)
+    with _MEMO_LOCK:
+        hit = _MEMO.get(key)
+    if hit is not None:
+        return hit
+    path = assets.cache_dir("contact_surfaces") / f"{key}.npz"
+    model = _load(path) if path.is_file() else None
+    if model is None:
+        model = build_surface_model(body)
+        try:
+            _save(path, model)
+        except OSError:
+            pass  # a read-only cache: built again next time
+    with _MEMO_LOCK:
+        if len(_MEMO) >= 16:
+            _MEMO.pop(next(iter(_MEMO)))
+        _MEMO[key] = model
+    return model
+
+
+def body_surface(body) -> BodySurface:
+    """The surface of a body (a live.body.Body with a mesh) on its own rest skeleton."""
+    return BodySurface(surface_model(body))
+
+
+
+#: ALLOWED[i, k]: probe set i is tested against part k (TARGETS as a table).
+ALLOWED = np.zeros((len(PROBES), len(PARTS)), bool)
+for _i, _t in enumerate(TARGETS):
+    for _parts in _t.parts:
+        ALLOWED[_i, list(_parts)] = True
+#: The region of each part (index into REGIONS).
+PART_REGION = np.array([REGIONS.index(p.region) for p in PARTS], np.int64)
+
+
+@dataclass(frozen=True)
+class Gaps:
+    """Gaps of probe sets to regions in one pose, one row per (probe set, region) near enough to
+    be measured: probe (G,) and region (G,) indices, gap (G,) signed metres, direction (G, 3)
+    unit, out of the region, point (G, 3) on the probe set where it is closest."""
+
+    probe: np.ndarray
+    region: np.ndarray
+    gap: np.ndarray
+    direction: np.ndarray
+    point: np.ndarray
+
+    @classmethod
+    def empty(cls) -> Gaps:
+        none = np.zeros(0, np.int64)
+        return cls(none, none, np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.ndarray, reach: np.ndarray | float,
+            tau: float) -> Gaps:
+    """Gaps of probe sets (indices into PROBES) to the regions they are tested against, in a pose
+    (glob (22, 3, 3), pos (22, 3)), all in one batch: numpy's per-call cost, not arithmetic, is
+    what a frame spends here.
+
+    Broad phase: a part is measured when its bounding sphere comes within ``reach`` (per probe
+    set or one value) of the probe set's, and then only at the probes within BAND of its skin's
+    box. A region's gap is the softmin (length ``tau``) over its parts and the set's probes of
+    the signed distance, each part moved rigidly by its joint and then corrected by how far
+    skinning moves the nearest skin vertex out of that rigid place (a bent spine's belly); its
+    direction and point are softmin-weighted too, so that they change continuously as the
+    closest probe or part changes. Regions with no probe that near are left out."""
+    m = surface.model
+    probes = np.asarray(probes, np.int64)
+    count = len(m.probes[0])
+    transforms = surface.transforms(glob, pos)
+    pts = surface.skin(glob, pos, np.concatenate([m.probes[i] for i in probes]), transforms)
+    pts = pts.reshape(len(probes), count, 3)
+    centre = pts.mean(1)
+    spread = pts - centre[:, None]
+    radius = np.sqrt(np.einsum("snk,snk->sn", spread, spread).max(1))
+    part_centre = pos[m.frames] + np.einsum("kij,kj->ki", glob[m.frames], m.centre * surface.scale)
+    apart = np.sqrt(((centre[:, None] - part_centre[None]) ** 2).sum(-1)) - radius[:, None] \
+        - m.radius[None] * surface.scale
+    near = ALLOWED[probes] & (apart < np.broadcast_to(np.asarray(reach, np.float64), (len(probes),))[:, None])
+    which, parts = np.nonzero(near)  # row-major: by probe set, then part
+    if not len(parts):
+        return Gaps.empty()
+    # Rows ordered by (probe set, region, part): a region's rows are contiguous.
+    order = np.lexsort((parts, PART_REGION[parts], which))
+    which, parts = which[order], parts[order]
+    region = PART_REGION[parts]
+    frames = m.frames[parts]
+    rot = glob[frames]  # (P, 3, 3)
+    row_pts = pts[which]  # (P, N, 3)
+    local = np.matmul(row_pts - pos[frames][:, None, :], rot) * (1.0 / surface.scale)
+    # Only probes within BAND of a part's skin box are sampled; the others are too far to count.
+    outside = np.abs(local - m.box_centre[parts][:, None, :]) - m.box_half[parts][:, None, :]
+    worst = np.maximum(np.maximum(outside[..., 0], outside[..., 1]), outside[..., 2])
+    r_idx, n_idx = np.nonzero(worst < BAND)  # row-major: entries of a region contiguous
+    if not len(r_idx):
+        return Gaps.empty()
+    out, nearest = m.sample(parts[r_idx], local[r_idx, n_idx])
+    grad = np.einsum("qij,qj->qi", rot[r_idx], out[:, 1:])
+    n = grad / np.maximum(np.sqrt(np.einsum("qi,qi->q", grad, grad)), 1e-9)[:, None]
+    dist = out[:, 0] * surface.scale
+    key = which[r_idx] * len(REGIONS) + region[r_idx]
+    starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
+    sizes = np.diff(np.append(starts, len(key)))
+    low = np.repeat(np.minimum.reduceat(dist, starts), sizes)
+    # Skinning's correction where the softmin will look (elsewhere it weighs nothing).
+    look = np.flatnonzero(dist < low + 12.0 * tau)
+    offsets = surface.skin_offsets(glob, pos, nearest[look], parts[r_idx[look]], transforms)
+    dist[look] -= np.einsum("qi,qi->q", n[look], offsets)
+    w = np.exp(-(dist - np.repeat(np.minimum.reduceat(dist, starts), sizes)) * (1.0 / tau))
+    total = np.add.reduceat(w, starts)
+    gap = np.add.reduceat(w * dist, starts) / total
+    direction = np.add.reduceat(w[:, None] * n, starts, axis=0)
+    direction /= np.maximum(np.sqrt(np.einsum("gi,gi->g", direction, direction)), 1e-9)[:, None]
+    point = np.add.reduceat(w[:, None] * row_pts[r_idx, n_idx], starts, axis=0) / total[:, None]
+    first = r_idx[starts]
+    return Gaps(probes[which[first]], region[first], gap, direction, point)

@@ -1,0 +1,210 @@
+"""Self-contacts: the body surface, the performer's contacts with hysteresis, the avatar's
+correction (contacts kept, hands and forearms out of the body, smooth), the stage and the CLI."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from live.body.library import load_body
+from live.core import assets
+from live.core.errors import UserInputError
+from live.core.skeleton import JOINT_INDEX
+from live.retarget.contacts_self import ContactSettings, SelfContactDetector
+from live.retarget.contacts_surface import (
+    PARTS,
+    PROBES,
+    REGIONS,
+    body_surface,
+    measure,
+    signed_distances,
+    vertex_normals,
+    winding_numbers,
+)
+
+BVH = assets.bvh_dir()
+needs_bvh = pytest.mark.skipif(not (BVH / "mb_49_11.bvh").is_file(), reason="needs ../shared/data/bvh")
+_ALL = np.arange(len(PROBES))
+
+
+def _rest_pose(body):
+    return np.tile(np.eye(3), (22, 1, 1)), np.asarray(body.rest_joints, np.float64)
+
+
+def test_part_grids_match_the_skin_in_the_rest_pose():
+    """A part's grid distance (rigid, trilinear) against the exact distance to its skin."""
+    body = load_body("child_boy_4y")
+    surface = body_surface(body)
+    glob, pos = _rest_pose(body)
+    v = np.asarray(body.vertices, np.float64)
+    faces = np.asarray(body.faces, np.int64)
+    rng = np.random.default_rng(0)
+    spine2 = PARTS.index(next(p for p in PARTS if p.name == "spine2"))
+    member = np.asarray(body.weights)[:, JOINT_INDEX["spine2"]] >= 0.5
+    pts = v[rng.choice(np.flatnonzero(member), 300)] + rng.normal(0.0, 0.01, (300, 3))
+    grid_d = surface.distances(glob, pos, pts, np.array([spine2]))[0][0]
+    part_faces = faces[(np.asarray(body.weights)[:, JOINT_INDEX["spine2"]] >= 0.25)[faces].any(1)]
+    exact = signed_distances(v, vertex_normals(v, faces), part_faces, pts)[0]
+    assert np.abs(grid_d - exact).mean() < 0.0015
+    assert np.percentile(np.abs(grid_d - exact), 95) < 0.004
+
+
+def test_winding_numbers_tell_inside_from_outside():
+    body = load_body("child_boy_4y")
+    v, f = np.asarray(body.vertices, np.float64), np.asarray(body.faces)
+    pelvis = np.asarray(body.rest_joints[0], np.float64)
+    w = winding_numbers(v, f, np.array([pelvis, pelvis + [0.0, 0.0, 1.0], pelvis + [0.0, 2.0, 0.0]]))
+    assert w[0] == pytest.approx(1.0, abs=1e-6) and abs(w[1]) < 1e-6 and abs(w[2]) < 1e-6
+
+
+def test_contacts_start_below_on_and_end_above_off():
+    """Hysteresis: a gap hovering between on (1 cm) and off (2 cm) keeps a contact, not starts one;
+    the weight ramps up over blend_s and back down after the contact ends."""
+    settings = ContactSettings()
+    det = SelfContactDetector(settings)
+    gaps = [0.015, 0.012, 0.008, 0.015, 0.019, 0.015, 0.021, 0.015]
+    states, weights = [], []
+    for g in gaps:
+        grid = np.full((len(PROBES), len(REGIONS)), 1.0)
+        grid[0, REGIONS.index("torso")] = g
+        out = det.step(grid, 1 / 30)
+        states.append(bool(out.contact[0, REGIONS.index("torso")]))
+        weights.append(float(out.weight[0, REGIONS.index("torso")]))
+    assert states == [False, False, True, True, True, True, False, False]
+    assert weights[2] > 0 and all(b >= a for a, b in zip(weights[2:6], weights[3:6]))
+    assert weights[6] < weights[5] and weights[0] == 0.0
+
+
+def _clip(name: str, start: int, count: int):
+    from live.evaluation.retarget import prepare_motion
+
+    m = prepare_motion(BVH / name, 30.0)
+    return replace(m, joints=m.joints[start:start + count], rotations=m.rotations[start:start + count],
+                   root=m.root[start:start + count])
+
+
+def _retarget(motion, source, target, contacts: bool):
+    from live.evaluation.contacts import run_retargeter
+    from live.evaluation.retarget import make_retargeter, source_skeletons
+    from live.retarget.contacts_retargeter import ContactRetargeter
+
+    joints, rest, _ = source_skeletons(motion, source, "skeleton")
+    rt = make_retargeter("analytic", rest, target.rest_joints, 30.0)
+    if contacts:
+        rt = ContactRetargeter(rt, body_surface(target), target.rest_joints, rest, body_surface(source))
+    return run_retargeter(rt, joints), rt
+
+
+@needs_bvh
+def test_a_hand_sinking_into_a_heavy_belly_is_pushed_out_and_the_contact_kept():
+    """Hands resting on the belly (CMU subject 49, curled in) on the heaviest avatar: without the
+    correction they sink centimetres in; with it the contacts stay within 2 cm and the hands no
+    deeper than a few millimetres, measured on the skinned mesh."""
+    from live.evaluation.contacts import REGIONS as EVAL_REGIONS
+    from live.evaluation.contacts import BodyRegions, contact_geometry
+
+    motion = _clip("mb_49_11.bvh", 190, 24)
+    source, target = load_body("adult_male_average"), load_body("tall_heavy_male")
+    regions = BodyRegions.of(target)
+    faces = np.asarray(target.faces, np.int64)
+    from live.body.skinning import lbs
+
+    results = {}
+    for contacts in (False, True):
+        (root, rot, _), _ = _retarget(motion, source, target, contacts)
+        gaps, depth = contact_geometry(regions, faces, lbs(target.vertices, target.weights, target.rest_joints, rot, root))
+        results[contacts] = (gaps, depth)
+    torso = list(EVAL_REGIONS).index("torso")
+    hands_off = results[False][0][:, :, torso]
+    hands_on = results[True][0][:, :, torso]
+    assert hands_off.min() < -0.02  # sinks in by more than 2 cm without
+    assert hands_on.min() > -0.008
+    assert np.all(hands_on[hands_off < 0.01] < 0.02)  # the contacts are kept
+
+
+@needs_bvh
+def test_nothing_near_leaves_the_pose_exactly_as_the_retargeter_made_it():
+    """A walk's first frames with the arms away from the body: bit-identical to no correction."""
+    motion = _clip("cc_007_01.bvh", 0, 1)
+    source, target = load_body("adult_male_average"), load_body("child_boy_9y")
+    t_pose = replace(motion, rotations=np.tile([1.0, 0, 0, 0], (1, 22, 1)).astype(np.float32),
+                     joints=(np.asarray(source.rest_joints)[None]).astype(np.float32))
+    (root_a, rot_a, j_a), _ = _retarget(t_pose, source, target, False)
+    (root_b, rot_b, j_b), rt = _retarget(t_pose, source, target, True)
+    assert np.array_equal(rot_a, rot_b) and np.array_equal(j_a, j_b) and rt.counters["frames_corrected"] == 0
+
+
+@needs_bvh
+def test_the_correction_follows_the_motion_smoothly():
+    """The wrists' correction never jumps: frame to frame it changes by at most the rate limit,
+    and the corrected motion's acceleration stays near the uncorrected one's."""
+    from live.retarget.contacts_keep import MAX_HAND_SPEED
+
+    motion = _clip("mb_16_15.bvh", 0, 90)
+    source, target = load_body("adult_male_average"), load_body("tall_heavy_male")
+    (_, _, off), _ = _retarget(motion, source, target, False)
+    (_, _, on), _ = _retarget(motion, source, target, True)
+    wrists = [JOINT_INDEX["left_wrist"], JOINT_INDEX["right_wrist"]]
+    correction = on[:, wrists] - off[:, wrists]
+    step = np.linalg.norm(np.diff(correction, axis=0), axis=-1)
+    assert correction.any() and step.max() <= MAX_HAND_SPEED / 30.0 * 1.5 + 1e-4
+    acc = lambda j: np.linalg.norm(j[2:] - 2 * j[1:-1] + j[:-2], axis=-1).mean()  # noqa: E731
+    assert acc(on) < acc(off) + 0.003
+
+
+def test_measure_finds_the_other_hand_when_the_hands_touch():
+    """Clapping: the right hand moved onto the left, the left hand's gap to the right hand is
+    about zero and points from the right hand to the left."""
+    body = load_body("child_boy_9y")
+    surface = body_surface(body)
+    glob, pos = _rest_pose(body)
+    pos = pos.copy()
+    left = surface.probe_points(glob, pos, 0)
+    right = surface.probe_points(glob, pos, 1)
+    # Move the right hand (wrist and its skin) so that its outermost point meets the left's.
+    shift = left[:, 0].min() - right[:, 0].max()
+    pos[JOINT_INDEX["right_wrist"]] += [shift - 0.04, 0.0, 0.0]
+    pos[JOINT_INDEX["right_elbow"]] += [shift - 0.04, 0.0, 0.0]
+    gaps = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+    row = np.flatnonzero((gaps.probe == 0) & (gaps.region == REGIONS.index("right_hand")))
+    assert len(row) == 1
+    assert abs(gaps.gap[row[0]]) < 0.03
+    assert gaps.direction[row[0], 0] > 0.5
+
+
+def test_the_stage_keeps_contacts_by_default_with_a_mesh_and_not_without():
+    from live.body.body import Body
+    from live.pipeline.stages import RetargetStage
+
+    avatar = load_body("child_boy_9y")
+    assert RetargetStage(avatar).contacts
+    assert not RetargetStage(avatar, contacts="off").contacts
+    cloud = Body(vertices=avatar.vertices, faces=np.zeros((0, 3), np.int32), rest_joints=avatar.rest_joints,
+                 weights=avatar.weights, parents=avatar.parents, name="cloud")
+    assert not RetargetStage(cloud).contacts
+    with pytest.raises(UserInputError, match="mesh"):
+        RetargetStage(cloud, contacts="on")
+
+
+@needs_bvh
+def test_eval_contacts_json_has_both_runs(capsys):
+    from live.app.cli import main
+
+    code = main(["eval", "contacts", "--motion", str(BVH / "daz_indian_04.bvh"), "--source-body", "adult_male_average",
+                 "--target-body", "child_girl_6y", "--max-frames", "12", "--json"])
+    report = json.loads(capsys.readouterr().out)
+    assert code == 0
+    for key in ("hand_contact_recall", "hand_contact_precision", "penetration_mean_mm", "penetration_max_mm",
+                "mpjpe_mm"):
+        assert key in report and key in report["off"]
+    assert report["frames"] == 12
+
+
+def test_eval_contacts_refuses_a_missing_motion(capsys):
+    from live.app.cli import main
+
+    assert main(["eval", "contacts", "--motion", "no_such_clip.bvh"]) == 2
+    assert "no such motion file" in capsys.readouterr().err
