@@ -122,3 +122,87 @@ def test_build_stages_rejects_unknown_modes():
         build_stages("both")
     assert [s.name for s in build_stages("fused", depth_stage=NoisySkeletonStage())] == ["skeleton", "fusion"]
     assert JOINT_INDEX["pelvis"] == 0
+
+
+def test_solve_joints_weighs_depth_against_bones():
+    from live.imu.fusion import solve_joints
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(22, 3))
+    bones = np.array([x[c] - x[p] for p, c in __import__("live.core.skeleton", fromlist=["BONES"]).BONES])
+    # Bones alone (and a faint prior at the truth) give the truth; depth alone gives depth.
+    assert np.allclose(solve_joints(np.zeros((22, 3)), np.zeros(22), bones, np.ones(21), x, 1e-6), x, atol=1e-5)
+    noisy = x + rng.normal(0, 0.05, x.shape)
+    assert np.allclose(solve_joints(noisy, np.ones(22), bones, np.zeros(21), x, 0.0), noisy)
+    # Both: the well-known bones pull a lone bad depth joint back toward its place.
+    bad = x.copy()
+    bad[20] += 0.3
+    fused = solve_joints(bad, np.ones(22), bones, np.full(21, 1000.0), x, 0.0)
+    assert np.linalg.norm(fused[20] - x[20]) < 0.03  # its pull shared by all 22 joints (1/22 of 0.52 m)
+
+
+def test_sensor_filter_learns_a_mounting_error_and_refuses_outliers():
+    from live.core.rotations import quat_from_axis_angle, quat_rotate
+    from live.imu.fusion_filters import SensorFilter
+
+    rng = np.random.default_rng(1)
+    error = quat_from_axis_angle(np.radians([6.0, -4.0, 3.0]))  # the true mounting correction
+    f = SensorFilter(1, gate=3.0)
+    offsets = np.array([[0.0, -0.4, 0.0], [0.1, 0.0, 0.3]])
+    for _ in range(300):
+        seg = quat_from_axis_angle(rng.normal(0, 0.8, 3))[None]
+        truth = quat_rotate(np.broadcast_to(quat_multiply_(seg[0], error), (2, 4)), offsets)
+        obs = truth + rng.normal(0, 0.01, truth.shape)
+        u, H = f.jacobian(seg, np.zeros(2, np.int64), offsets)
+        f.predict(1 / 30)
+        f.update(H, u, np.zeros(2, np.int64), obs, np.full(2, 0.03 ** 2), np.arange(2))
+    from live.core.rotations import quat_angle
+
+    assert np.degrees(quat_angle(quat_multiply_(np.array([error[0], -error[1], -error[2], -error[3]]), f.mount[0]))) < 1.5
+    # A bone far off (a lost limb reported anyway) is refused and changes nothing.
+    before = f.mount.copy()
+    u, H = f.jacobian(seg, np.zeros(1, np.int64), offsets[:1])
+    ok = f.update(H, u, np.zeros(1, np.int64), -u, np.full(1, 0.03 ** 2), np.zeros(1, np.int64))
+    assert not ok.any() and np.allclose(f.mount, before)
+
+
+def quat_multiply_(a, b):
+    from live.core.rotations import quat_multiply
+
+    return quat_multiply(a, b)
+
+
+def test_fusion_carries_a_limb_depth_lost_but_still_reports(session):
+    """The regressor keeps reporting a limb it lost (off by ~30 cm, confidence kept) for 2 s:
+    the suit carries the limb; depth alone fails."""
+    path, scene, meta = session
+
+    class LostArm(NoisySkeletonStage):
+        def process(self, result):
+            ok = super().process(result)
+            t = (result.t_ns - 1_000_000_000) / 1e9
+            if ok and 4.0 <= t < 6.0:
+                arm = [JOINT_INDEX["left_elbow"], JOINT_INDEX["left_wrist"]]
+                joints = np.asarray(result.skeleton.joints).copy()
+                joints[arm] += np.array([0.2, -0.15, 0.15])
+                result.skeleton = SkeletonFrame(result.t_ns, joints, np.ones(22, np.float32))
+            return ok
+
+    arm = [JOINT_INDEX["left_elbow"], JOINT_INDEX["left_wrist"]]
+    depth_stage = LostArm(occlusion_every_s=0.0, seed=4)
+    rows = []
+    keep = depth_stage.process
+
+    def record(result):
+        ok = keep(result)
+        rows.append((result.t_ns, None if result.skeleton is None else np.asarray(result.skeleton.joints).copy()))
+        return ok
+
+    depth_stage.process = record
+    pred, gt = _run(path, build_stages("fused", depth_stage=depth_stage, stream_meta=meta, height=1.75))
+    t = np.array([r[0] for r in rows if r[1] is not None])
+    depth = np.array([r[1] for r in rows if r[1] is not None], np.float64)
+    lost = ((t - 1_000_000_000) / 1e9 >= 4.0) & ((t - 1_000_000_000) / 1e9 < 6.0)
+    e_depth = np.linalg.norm(depth[lost][:, arm] - gt[lost][:, arm], axis=-1).mean()
+    e_fused = np.linalg.norm(pred[lost][:, arm] - gt[lost][:, arm], axis=-1).mean()
+    assert e_depth > 0.2 and e_fused < 0.06, (e_depth, e_fused)

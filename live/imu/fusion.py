@@ -34,7 +34,7 @@ from live.core.rotations import quat_multiply, quat_rotate
 from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, joints_from_offsets, rest_offsets
 from live.core.timing import frame_interval_s, seconds_between
 from live.imu.calibration import Calibration
-from live.imu.fusion_filters import HeadingFilter, SensorFilter, rotate_offsets
+from live.imu.fusion_filters import HeadingFilter, SensorFilter
 from live.imu.suit_skeleton import FootOdometry, SuitPose, fill_globals
 
 _PARENT = np.array([p for p, _ in BONES])
@@ -130,8 +130,9 @@ class RestShape:
 
 
 #: The depth skeleton's noise per joint and axis (m) where the depth supports the joint
-#: (confidence > 0): RMS errors of the skeleton stage on the tuning sessions of
-#: ``python -m research.imu_fusion_eval --tune`` (held-out subject 7, two held-out bodies).
+#: (confidence > 0): RMS errors of the skeleton stage on sessions of the fusion's tuning clips and
+#: bodies (CMU subject 7 on adult_male_average and short_male; ``python -m
+#: research.imu_fusion_eval --tune`` re-measures them on its own cases, 0.011-0.037 m).
 DEPTH_STD = np.array([0.017, 0.020, 0.020, 0.026, 0.024, 0.020, 0.029, 0.024, 0.020, 0.031, 0.028, 0.023,
                       0.021, 0.024, 0.023, 0.021, 0.023, 0.020, 0.025, 0.029, 0.040, 0.039])
 #: Joints inside the body: the depth never supports them (confidence ~0), and they are no worse
@@ -139,7 +140,7 @@ DEPTH_STD = np.array([0.017, 0.020, 0.020, 0.026, 0.024, 0.020, 0.029, 0.024, 0.
 INNER = np.array([JOINT_INDEX[n] for n in ("spine1", "spine2", "spine3")])
 
 
-def depth_variance(confidence: np.ndarray, joints: np.ndarray, unsupported: float = 4.0,
+def depth_variance(confidence: np.ndarray, joints: np.ndarray, unsupported: float = 6.0,
                    min_conf: float = 0.0) -> np.ndarray:
     """(22,) variance (m^2, per axis) of each depth joint: DEPTH_STD, times ``unsupported`` where
     the depth does not support it (confidence <= min_conf: hidden, out of the image) except inner
@@ -186,9 +187,9 @@ class Fuser:
     lost and found again (``_lost_limbs``); filter options: ``heading`` (HeadingFilter) and ``sensor``
     (SensorFilter) keyword dicts."""
 
-    def __init__(self, calibration: Calibration, *, template: np.ndarray | None = None, unsupported: float = 4.0,
+    def __init__(self, calibration: Calibration, *, template: np.ndarray | None = None, unsupported: float = 6.0,
                  interp_std: float = np.radians(20.0), imu_std: float = np.radians(2.0), length_std: float = 0.01,
-                 robust: float = 3.0, learn_conf: float = 0.5, gate: float = 2.5, clear_frames: int = 5,
+                 robust: float = 3.0, learn_conf: float = 0.5, gate: float = 2.5, clear_frames: int = 15,
                  correlation: float = 8.0, shape_rate: float = 0.1,
                  interp_window: int = 60, interp_prior: int = 10,
                  heading: dict | None = None, sensor: dict | None = None):
@@ -223,8 +224,12 @@ class Fuser:
         self._last_t: int | None = None
         self.frames = 0
         self.counters = {"depth_frames": 0, "suit_only_frames": 0, "outliers": 0, "lost_joint_frames": 0}
-        # Bones of each measured segment (its children), for the filters.
-        self._kids = {i: list(CHILDREN[int(j)]) for i, j in enumerate(calibration.joints)}
+        # The bones the suit measures: (sensor row, its segment joint, the child joint, the bone's
+        # index in BONES, the bone's number among its segment's).
+        pairs = [(i, int(j), c, c - 1, n) for i, j in enumerate(calibration.joints)
+                 for n, c in enumerate(CHILDREN[int(j)])]
+        self._rows, self._joint, self._child, self._bone, self._slot = (
+            np.array([p[k] for p in pairs], np.int64).reshape(-1) for k in range(5))
 
     # -- pieces ---------------------------------------------------------------------------------
     def rest_joints(self) -> np.ndarray:
@@ -237,45 +242,39 @@ class Fuser:
 
     def _heading_update(self, seg: np.ndarray, offs: np.ndarray, x: np.ndarray, var: np.ndarray) -> None:
         """The yaw turning the suit's measured bones onto the depth bones, into the heading filter."""
-        corrected = self.sensors.correct(seg)
-        pred, obs, wt = [], [], []
-        for i, kids in self._kids.items():
-            j = int(self.cal.joints[i])
-            for k in kids:
-                pred.append(rotate_offsets(corrected[i], offs[k][None])[0])
-                obs.append(x[k] - x[j])
-                wt.append(1.0 / (var[k] + var[j]))
-        if not pred:
+        if not len(self._rows):
             return
-        angle, evidence = yaw_between(np.array(pred), np.array(obs), np.array(wt))
+        corrected = self.sensors.correct(seg)
+        pred = quat_rotate(corrected[self._rows], offs[self._child])
+        obs = x[self._child] - x[self._joint]
+        angle, evidence = yaw_between(pred, obs, 1.0 / (var[self._child] + var[self._joint]))
         if evidence < 1e-3:
             return
         self.heading.update(angle, 1.0 / evidence)
 
     def _sensor_updates(self, seg: np.ndarray, offs: np.ndarray, x: np.ndarray, var: np.ndarray) -> None:
-        for i, kids in self._kids.items():
-            j = int(self.cal.joints[i])
-            kids = [k for k in kids if np.isfinite(var[k]) and np.isfinite(var[j])]
-            if not kids:
-                continue
-            length = np.linalg.norm(offs[kids], axis=-1)
-            dir_var = self.correlation * (var[kids] + var[j]) / np.maximum(length, 0.05) ** 2
-            self.sensors.update(seg[i], i, offs[kids], x[kids] - x[j], dir_var)
+        k = np.flatnonzero(np.isfinite(var[self._child]) & np.isfinite(var[self._joint]))
+        if not len(k):
+            return
+        child, joint = self._child[k], self._joint[k]
+        u, H = self.sensors.jacobian(seg, self._rows[k], offs[child])
+        length = np.linalg.norm(offs[child], axis=-1)
+        dir_var = self.correlation * (var[child] + var[joint]) / np.maximum(length, 0.05) ** 2
+        self.sensors.update(H, u, self._rows[k], x[child] - x[joint], dir_var, self._slot[k])
 
     def _bones(self, glob: np.ndarray, seg: np.ndarray, offs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Suit bone vectors (21, 3) and their weights (21,) (1 / variance in m^2)."""
-        vec = quat_multiply(glob[_PARENT], np.concatenate([np.zeros((len(BONES), 1)), offs[_CHILD]], -1))
-        vec = quat_multiply(vec, glob[_PARENT] * np.array([1.0, -1.0, -1.0, -1.0]))[:, 1:]
-        length = np.linalg.norm(offs[_CHILD], axis=-1)
+        vec = quat_rotate(glob[_PARENT], offs[_CHILD])
         if self.heading.variance is None:
             return vec, np.zeros(len(BONES))
+        length = np.linalg.norm(offs[_CHILD], axis=-1)
         var = self._interp_var.copy()  # bones of joints without a sensor: as found against depth
-        for b, p in enumerate(_PARENT):
-            i = self.row.get(int(p))
-            if i is not None:
-                dir_var = self.sensors.direction_var(seg[i], i, offs[_CHILD[b]][None])[0] + self.imu_std ** 2
-                dir_var += self.heading.variance * (1.0 - (vec[b, 1] / max(length[b], 1e-9)) ** 2)
-                var[b] = dir_var * length[b] ** 2 + self.length_std ** 2 + self.shape.variance()[b]
+        if len(self._rows):
+            b = self._bone
+            _, H = self.sensors.jacobian(seg, self._rows, offs[self._child])
+            dir_var = self.sensors.direction_var(H, self._rows) + self.imu_std ** 2
+            dir_var += self.heading.variance * (1.0 - (vec[b, 1] / np.maximum(length[b], 1e-9)) ** 2)
+            var[b] = dir_var * length[b] ** 2 + self.length_std ** 2 + self.shape.variance()[b]
         return vec, 1.0 / var
 
     def _learn_interp_var(self, x: np.ndarray, var: np.ndarray, vec: np.ndarray) -> None:
@@ -295,7 +294,7 @@ class Fuser:
         """(22,) depth joints of limbs the depth lost: the bone leading to the joint is farther
         from the suit's than both their variances explain (``gate`` standard deviations, three
         degrees of freedom), or the joint hangs below such a one. A joint stays lost until its
-        bone agrees within two standard deviations for ``clear_frames`` frames."""
+        bone has been within the gate for ``clear_frames`` frames in a row."""
         for b, (p, c) in enumerate(BONES):
             if c not in LIMB_SEGMENTS:
                 continue
@@ -307,7 +306,7 @@ class Fuser:
             if d2 > self.gate ** 2:
                 self._lost[c] = True
                 self._agree[c] = 0
-            elif d2 < 4.0:
+            else:
                 self._agree[c] += 1
                 if self._agree[c] >= self.clear_frames:
                     self._lost[c] = False

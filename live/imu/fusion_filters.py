@@ -109,50 +109,59 @@ class SensorFilter:
         """Segment rotations (S, 4) -> corrected (S, 4)."""
         return quat_normalize(quat_multiply(quat_multiply(yaw_quat(self.drift), seg), self.mount))
 
-    def jacobian(self, seg: np.ndarray, i: int, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted unit bone directions (K, 3) of sensor i's segment (uncorrected rotation seg
-        (4,), rest offsets (K, 3) in the segment frame) and their Jacobian (K, 3, 4) with respect
-        to the error state."""
+    def jacobian(self, seg: np.ndarray, rows: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """K bones at once: the predicted unit directions (K, 3) of bones with rest offsets (K, 3)
+        in the frames of the segments of sensors ``rows`` (K,) (uncorrected segment rotations seg
+        (S, 4)), and their Jacobians (K, 3, 4) with respect to each sensor's error state."""
         o = offsets / np.maximum(np.linalg.norm(offsets, axis=-1, keepdims=True), 1e-9)
-        world = quat_multiply(yaw_quat(self.drift[i]), seg)
-        rot = quat_to_matrix(quat_multiply(world, self.mount[i]))
-        u = o @ rot.T
+        world = quat_multiply(yaw_quat(self.drift[rows]), seg[rows])
+        rot = quat_to_matrix(quat_multiply(world, self.mount[rows]))
+        u = np.einsum("kij,kj->ki", rot, o)
         H = np.empty((len(o), 3, 4))
         H[:, :, :3] = -rot @ skew(o)          # d(R exp(phi) o)/d phi = -R [o]x
         H[:, :, 3] = np.cross(UP, u)          # d(yaw(delta) u)/d delta = up x u
         return u, H
 
-    def direction_var(self, seg: np.ndarray, i: int, offsets: np.ndarray) -> np.ndarray:
-        """(K,) variance (rad^2, per axis across the bone) of the predicted directions of sensor i's bones."""
-        _, H = self.jacobian(seg, i, offsets)
-        cov = H @ self.P[i] @ H.transpose(0, 2, 1)
+    def direction_var(self, H: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(K,) variance (rad^2, per axis across the bone) of predicted directions with Jacobians
+        H (K, 3, 4) of sensors ``rows``."""
+        cov = H @ self.P[rows] @ H.transpose(0, 2, 1)
         return np.trace(cov, axis1=1, axis2=2) / 2.0
 
-    def update(self, seg: np.ndarray, i: int, offsets: np.ndarray, observed: np.ndarray,
-               variance: np.ndarray) -> np.ndarray:
-        """One measurement of sensor i: depth bone directions observed (K, 3) (any length) of the
-        bones with rest offsets (K, 3), each with an isotropic variance (K,) rad^2. Bones whose
-        own innovation is beyond the gate are refused; returns the (K,) accepted mask."""
-        u, H = self.jacobian(seg, i, offsets)
+    def update(self, H: np.ndarray, u: np.ndarray, rows: np.ndarray, observed: np.ndarray, variance: np.ndarray,
+               slots: np.ndarray) -> np.ndarray:
+        """Depth bone directions observed (K, 3) (any length) of the K bones predicted as u (K, 3)
+        with Jacobians H (K, 3, 4), of sensors ``rows`` (K,), each with an isotropic variance (K,)
+        rad^2; ``slots`` (K,) numbers each sensor's bones 0, 1, 2 (one sensor's bones are taken in
+        turn, all sensors at once). A bone whose innovation is beyond the gate is refused; returns
+        the (K,) accepted mask."""
         z = observed / np.maximum(np.linalg.norm(observed, axis=-1, keepdims=True), 1e-9)
-        y = z - u
+        dx = np.zeros((self.S, 4))
         ok = np.zeros(len(u), bool)
-        for k in range(len(u)):
-            s = H[k] @ self.P[i] @ H[k].T + np.eye(3) * variance[k]
-            ok[k] = float(y[k] @ np.linalg.solve(s, y[k])) <= self.gate ** 2
-        self.refused[i] += int((~ok).sum())
-        if not ok.any():
-            return ok
-        Hs = H[ok].reshape(-1, 4)
-        R = np.diag(np.repeat(variance[ok], 3))
-        S = Hs @ self.P[i] @ Hs.T + R
-        K = np.linalg.solve(S, Hs @ self.P[i]).T
-        dx = K @ y[ok].reshape(-1)
-        self.P[i] = (np.eye(4) - K @ Hs) @ self.P[i]
-        self.P[i] = 0.5 * (self.P[i] + self.P[i].T)
-        self.mount[i] = quat_normalize(quat_multiply(self.mount[i], quat_from_axis_angle(dx[:3])))
-        self.drift[i] = float(wrap_angle(self.drift[i] + dx[3]))
-        self.accepted[i] += int(ok.sum())
+        eye3, eye4 = np.eye(3), np.eye(4)
+        for slot in range(int(slots.max()) + 1 if len(slots) else 0):
+            k = np.flatnonzero(slots == slot)
+            r = rows[k]
+            P = self.P[r]
+            Hk = H[k]
+            y = (z[k] - u[k]) - np.einsum("kij,kj->ki", Hk, dx[r])
+            S = Hk @ P @ Hk.transpose(0, 2, 1) + variance[k, None, None] * eye3
+            d2 = np.einsum("ki,ki->k", y, np.linalg.solve(S, y[..., None])[..., 0])
+            good = d2 <= self.gate ** 2
+            ok[k] = good
+            if not good.any():
+                continue
+            k, r, P, Hk, y, S = k[good], r[good], P[good], Hk[good], y[good], S[good]
+            K = np.linalg.solve(S, Hk @ P).transpose(0, 2, 1)  # P H^T S^-1 (S, P symmetric)
+            dx[r] += np.einsum("kij,kj->ki", K, y)
+            P = (eye4 - K @ Hk) @ P
+            self.P[r] = 0.5 * (P + P.transpose(0, 2, 1))
+        self.refused += np.bincount(rows[~ok], minlength=self.S)
+        self.accepted += np.bincount(rows[ok], minlength=self.S)
+        changed = np.any(dx != 0.0, axis=1)
+        if changed.any():
+            self.mount[changed] = quat_normalize(quat_multiply(self.mount[changed], quat_from_axis_angle(dx[changed, :3])))
+            self.drift = wrap_angle(self.drift + dx[:, 3])
         return ok
 
 
