@@ -410,6 +410,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="onnxruntime threads of the stage (default 1)")
     p.add_argument("--model", type=Path, default=None, metavar="ONNX",
                    help="the skeleton regressor (default: the shipped one)")
+    p.add_argument("--temporal", type=Path, default=None, metavar="ONNX",
+                   help="the temporal model behind it, even one trained behind another regressor "
+                        "(default: the shipped one when it matches the regressor)")
     p.add_argument("--label", default=None, help="a name for this run in the output (default: the git revision)")
     args = p.parse_args(argv)
     if args.workers < 1 or args.threads < 1:
@@ -419,10 +422,10 @@ def main(argv: list[str] | None = None) -> int:
     specs, skipped = plan(args.quick)
     generate(specs, args.workers)
     # Warm-up (ONNX sessions, caches): not timed.
-    replay(specs[0], lambda: SkeletonStage(args.model, threads=args.threads))
+    replay(specs[0], lambda: SkeletonStage(args.model, threads=args.threads, temporal=args.temporal or True))
     sessions = []
     for i, spec in enumerate(specs):
-        sessions.append(replay(spec, lambda: SkeletonStage(args.model, threads=args.threads)))
+        sessions.append(replay(spec, lambda: SkeletonStage(args.model, threads=args.threads, temporal=args.temporal or True)))
         print(f"\rreplayed {i + 1}/{len(specs)}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     rep = report(sessions, skipped)
