@@ -227,6 +227,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                    help="training scenes as users' sensors see people: five sensor models, flying pixels, "
                         "holes, clothes, occluders, any camera height and pitch, hidden extrinsics "
                         "(sim.sensor_realism; default on)")
+    p.add_argument("--clean", type=int, default=0, metavar="N",
+                   help="N more training samples without realism (the default sensor model, extrinsics given; "
+                        "seed + 10), mixed in so the clean views stay as good")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--threads", type=int, default=2)
@@ -263,6 +266,17 @@ def main(argv: list[str] | None = None) -> dict:
                             realism=args.realism)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12)), ("val_real", n_val)))}
+    if args.clean and args.realism:
+        if anny and args.anny_share > 0:
+            from models.train.anny_bodies import ensure_built
+            from sim.skeleton_data import anny_phenotypes
+
+            ensure_built(anny_phenotypes(anny, args.seed + 10), progress)
+        clean = generate("train", args.clean, seed=args.seed + 10, workers=args.workers, progress=progress,
+                         cache=not args.no_cache, anny=anny, anny_share=args.anny_share)
+        data["train"] = {k: (data["train"][k] + clean[k] if np.ndim(v) == 0
+                             else np.concatenate([data["train"][k], clean[k]]))
+                         for k, v in data["train"].items()}
     data_seconds = round(time.monotonic() - t0, 1)
     from live.body.library import list_presets
     from models.train.mirror_average import apply_mirror_average
