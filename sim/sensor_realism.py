@@ -6,7 +6,8 @@ shared real frames) is drawn at random per training job: the sensor (stereo or t
 whole as filled datasets have them), clothes and hair on the body (``sim.clothing``), a desk edge
 or a chair back between camera and performer, another person behind, the camera anywhere from
 0.5 to 2.5 m high and pitched from 20 degrees up to 45 down, rooms whose floor returns no depth,
-and frames without extrinsics (the runtime's finder then estimates up and the floor itself).
+frames without extrinsics (the runtime's finder then estimates up and the floor itself), and a
+quarter of the performers seated on a chair, crouching or moving in place (``sim.postures``).
 """
 
 from __future__ import annotations
@@ -20,10 +21,22 @@ from sim.clothing import Outfit, dress, random_outfit
 from sim.room import Box, Room, capsule_body, merge_meshes
 
 #: Bump when what a realism job draws changes (it keys the training-data cache).
-REALISM_VERSION = 1
+REALISM_VERSION = 2
+#: Share of realism jobs per posture (sim.postures); the rest perform the clip as recorded.
+POSTURE_ODDS = {"seated": 0.12, "crouching": 0.08, "in-place": 0.05}
 PITCH_RANGE_DEG = (-20.0, 45.0)  # looking up 20 degrees .. down 45
 HIDE_EXTRINSICS_SHARE = 0.4
 NO_FLOOR_SHARE = 0.15
+
+
+def random_posture(rng: np.random.Generator) -> str:
+    """A job's posture: mostly the clip as recorded, sometimes seated, crouching or in place."""
+    x, acc = rng.random(), 0.0
+    for name, p in POSTURE_ODDS.items():
+        acc += p
+        if x < acc:
+            return name
+    return "clip"
 
 
 def random_noise(rng: np.random.Generator):
@@ -125,4 +138,4 @@ def random_extras(rng: np.random.Generator, body, joints: np.ndarray, frames: np
     return SceneExtras(outfit, tuple(boxes), bystander, bool(rng.random() < HIDE_EXTRINSICS_SHARE), outward)
 
 
-__all__ = ["REALISM_VERSION", "SceneExtras", "random_noise", "realistic_view", "random_extras"]
+__all__ = ["REALISM_VERSION", "POSTURE_ODDS", "SceneExtras", "random_posture", "random_noise", "realistic_view", "random_extras"]
