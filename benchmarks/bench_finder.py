@@ -402,6 +402,20 @@ def _revision() -> str | None:
         return None
 
 
+def make_stage(args: argparse.Namespace):
+    """The stage under test. ``--temporal`` attaches that temporal model whatever regressor it was
+    trained behind: the measurement that decides whether it may run behind this one."""
+    from models.skeleton.runtime import SkeletonStage
+    from models.skeleton.temporal import TemporalRefiner
+
+    if args.temporal is None:
+        return SkeletonStage(args.model, threads=args.threads)
+    stage = SkeletonStage(args.model, threads=args.threads, temporal=False, filter=False)
+    stage.temporal = TemporalRefiner(args.temporal, args.threads)
+    stage.lag_s = stage.temporal.lag_s
+    return stage
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="a small subset (4 views, 1 s each, and one close-up)")
@@ -417,15 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.workers < 1 or args.threads < 1:
         p.error("--workers and --threads are >= 1")
-    from models.skeleton.runtime import SkeletonStage
-
     specs, skipped = plan(args.quick)
     generate(specs, args.workers)
     # Warm-up (ONNX sessions, caches): not timed.
-    replay(specs[0], lambda: SkeletonStage(args.model, threads=args.threads, temporal=args.temporal or True))
+    replay(specs[0], lambda: make_stage(args))
     sessions = []
     for i, spec in enumerate(specs):
-        sessions.append(replay(spec, lambda: SkeletonStage(args.model, threads=args.threads, temporal=args.temporal or True)))
+        sessions.append(replay(spec, lambda: make_stage(args)))
         print(f"\rreplayed {i + 1}/{len(specs)}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     rep = report(sessions, skipped)

@@ -83,6 +83,26 @@ def test_stage_takes_the_temporal_model_beside_its_regressor(tmp_path):
     assert SkeletonStage(other).temporal is None
 
 
+@pytest.mark.skipif(not DEFAULT_TEMPORAL_MODEL.is_file(), reason="no shipped temporal model")
+def test_a_temporal_model_runs_behind_a_regressor_it_was_validated_behind(tmp_path):
+    import json
+    import shutil
+
+    from models.skeleton.runtime import BASELINE_MODEL, SkeletonStage
+    from models.skeleton.temporal import file_sha256
+
+    regressor = tmp_path / "skeleton.onnx"
+    shutil.copy(BASELINE_MODEL, regressor)
+    shutil.copy(DEFAULT_TEMPORAL_MODEL, tmp_path / DEFAULT_TEMPORAL_MODEL.name)
+    card = json.loads(DEFAULT_TEMPORAL_MODEL.with_suffix(".json").read_text())
+    card_path = tmp_path / DEFAULT_TEMPORAL_MODEL.with_suffix(".json").name
+    card_path.write_text(json.dumps(card))
+    assert SkeletonStage(regressor).temporal is None
+    card["validated_behind"] = [{"file": regressor.name, "sha256": file_sha256(regressor)}]
+    card_path.write_text(json.dumps(card))
+    assert SkeletonStage(regressor).temporal is not None
+
+
 def test_missing_temporal_model_is_a_model_error(tmp_path):
     from models.skeleton.runtime import SkeletonStage
 

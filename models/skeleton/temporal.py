@@ -168,9 +168,14 @@ class TemporalRefiner:
             self._start += min(stale, n - 2)
 
     def matches(self, regressor_path: Path) -> bool:
-        """Whether this model was trained on the outputs of that regressor file."""
+        """Whether this model was trained on the outputs of that regressor file, or measured behind
+        it on held-out data and found to help (the card's ``validated_behind``: a regressor
+        fine-tuned from the one it was trained behind makes errors of the same kind)."""
         want = self.card.get("regressor_sha256")
-        return want is None or want == file_sha256(regressor_path)
+        if want is None:
+            return True
+        have = file_sha256(regressor_path)
+        return want == have or any(v.get("sha256") == have for v in self.card.get("validated_behind", []))
 
     def __call__(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray,
                  to_world: np.ndarray) -> RefinedSkeleton | None:
