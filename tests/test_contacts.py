@@ -208,3 +208,17 @@ def test_eval_contacts_refuses_a_missing_motion(capsys):
 
     assert main(["eval", "contacts", "--motion", "no_such_clip.bvh"]) == 2
     assert "no such motion file" in capsys.readouterr().err
+
+
+@needs_bvh
+def test_contact_clips_put_the_performers_hands_on_its_hips_and_together():
+    """The held-out walks made into contact clips: the performer's own skinned hands touch."""
+    from live.evaluation.contact_clips import _clap_gap, _gaps, take_motion
+
+    body = load_body("adult_male_average")
+    hips = take_motion("cc_007_04.bvh", 0, 8, "hands-on-hips", body)
+    assert np.abs(_gaps("hands-on-hips", body, np.asarray(hips.joints, np.float64))).max() < 0.005
+    clap = take_motion("mb_08_04.bvh", 76, 8, "clapping", body)
+    gaps = _gaps("clapping", body, np.asarray(clap.joints, np.float64))
+    closed = _clap_gap(np.arange(8) / 30.0) == 0.0
+    assert closed.any() and np.all(gaps[closed] < 0.01) and np.all(gaps[closed] > -0.02)

@@ -134,6 +134,9 @@ def contact_scores(source_gaps: np.ndarray, avatar_gaps: np.ndarray, depth: np.n
         "penetration_mean_mm": float(1000 * depth[sinking].mean()) if sinking.any() else 0.0,
         "penetration_max_mm": float(1000 * depth.max()) if depth.size else 0.0,
         "penetrating_share": float(sinking.mean()) if depth.size else 0.0,
+        "penetrating_pairs": int(sinking.sum()),
+        "kept_hand_contacts": int(kept.sum()),
+        "true_avatar_contacts": int(true.sum()),
         "source_hand_contacts": int(src_touch.sum()),
         "avatar_hand_contacts": int(ava_touch.sum()),
     }
@@ -154,14 +157,15 @@ def run_retargeter(rt, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
 
 def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton", retarget: str = "analytic", *,
                       fps: float = 30.0, max_frames: int | None = None, camera: str = "oak-d", seed: int = 0,
-                      lag: int = 0, settings=None, progress=None) -> dict[str, Any]:
+                      lag: int = 0, settings=None, progress=None, skeletons=None) -> dict[str, Any]:
     """The correction on and off for one motion from a source body to a target body.
 
     motion: a Motion or a BVH path (prepared as ``livecap eval retarget`` does); bodies: Body or
     a spec. Returns the corrected figures at the top level (``hand_contact_recall``,
     ``hand_contact_precision``, ``penetration_mean_mm``, ``penetration_max_mm``, ``mpjpe_mm``,
     and more), the same without the correction under ``"off"``, the performer's own penetration
-    under ``"source"``, and the run's names and settings."""
+    under ``"source"``, and the run's names and settings. skeletons: what the retargeter sees, as
+    ``source_skeletons`` returns it for this motion and source (reused across avatars)."""
     from live.body.library import load_body
     from live.body.skinning import lbs
     from live.evaluation.retarget import _on_body, make_retargeter, prepare_motion, source_skeletons
@@ -183,8 +187,10 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     if len(tgt.faces) == 0 or len(src.faces) == 0:
         raise UserInputError("contacts are measured on meshes: both bodies need faces")
     settings = settings or ContactSettings()
-    joints, src_rest, found = source_skeletons(motion, src, from_, camera=camera, seed=seed, lag=lag) \
-        if from_ == "depth" else source_skeletons(motion, src, from_)
+    if skeletons is None:
+        skeletons = source_skeletons(motion, src, from_, camera=camera, seed=seed, lag=lag) \
+            if from_ == "depth" else source_skeletons(motion, src, from_)
+    joints, src_rest, found = skeletons
     gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
     src_root, src_true = _on_body(motion, src.rest_joints)
     performer = body_surface(src) if from_ == "skeleton" else PerformerSurfaces()
@@ -238,3 +244,74 @@ def format_report(results: dict[str, Any] | list[dict[str, Any]]) -> str:
                  f"hands and forearms, mean over the (frame, arm) pairs sinking in by {SINK * 1000:g} mm or more; "
                  "Acc in mm/frame^2.")
     return "\n".join(lines)
+
+
+#: The slimmest child and the heaviest adult of the body library; the performer, a held-out body.
+CONTACT_AVATARS = ("child_girl_6y", "tall_heavy_male")
+CONTACT_PERFORMER = "adult_male_average"
+
+
+def contact_table(from_: str = "skeleton", *, takes=None, avatars=CONTACT_AVATARS,
+                  performer: str = CONTACT_PERFORMER, progress=None) -> list[dict[str, Any]]:
+    """Every take (default live.evaluation.contact_clips.CONTACT_TAKES) onto every avatar, the
+    correction on and off (one result each, as ``evaluate_contacts``), and a last row pooling
+    them (``motion``: "all")."""
+    from live.body.library import load_body
+    from live.evaluation.contact_clips import CONTACT_TAKES, take_motion
+    from live.evaluation.retarget import source_skeletons
+
+    takes = CONTACT_TAKES if takes is None else takes
+    src = load_body(performer)
+    rows = []
+    for k, (clip, start, frames, kind) in enumerate(takes):
+        motion = take_motion(clip, start, frames, kind, src)
+        skeletons = source_skeletons(motion, src, from_, seed=k) if from_ == "depth" \
+            else source_skeletons(motion, src, from_)
+        for avatar in avatars:
+            rows.append(evaluate_contacts(motion, src, load_body(avatar), from_, skeletons=skeletons))
+            if progress is not None:
+                progress(f"{motion.name} -> {avatar}")
+    rows.append(pooled(rows))
+    return rows
+
+
+def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One result for several: recall and precision over all their contacts, penetration mean
+    over all sinking (frame, arm) pairs, max of the maxima, joint metrics averaged over frames."""
+    def pool(runs: list[dict]) -> dict[str, float]:
+        frames = np.array([r["frames"] for r in rows], float)
+        src_c = sum(r["source_hand_contacts"] for r in runs)
+        ava_c = sum(r["avatar_hand_contacts"] for r in runs)
+        sinking = sum(r["penetrating_pairs"] for r in runs)
+        out = {"hand_contact_recall": sum(r["kept_hand_contacts"] for r in runs) / src_c if src_c else float("nan"),
+               "hand_contact_precision": sum(r["true_avatar_contacts"] for r in runs) / ava_c if ava_c else float("nan"),
+               "penetration_mean_mm": sum(r["penetration_mean_mm"] * r["penetrating_pairs"] for r in runs) / sinking
+               if sinking else 0.0,
+               "penetration_max_mm": max(r["penetration_max_mm"] for r in runs),
+               "penetrating_share": sinking / float(2 * frames.sum()),
+               "source_hand_contacts": src_c, "avatar_hand_contacts": ava_c, "penetrating_pairs": sinking}
+        for key in ("mpjpe_mm", "pa_mpjpe_mm", "acc_mm_per_frame2", "pa_acc_mm_per_frame2"):
+            out[key] = float(np.average([r[key] for r in runs], weights=frames))
+        return out
+
+    result = pool(rows)
+    result.update(off=pool([r["off"] for r in rows]), motion="all", source_body=rows[0]["source_body"],
+                  target_body=f"{len({r['target_body'] for r in rows})} avatars", frames=int(sum(r["frames"] for r in rows)),
+                  **{"from": rows[0]["from"]})
+    return result
+
+
+if __name__ == "__main__":  # python -m live.evaluation.contacts [skeleton|depth]
+    import argparse
+    import json
+    import sys
+
+    cli = argparse.ArgumentParser(prog="python -m live.evaluation.contacts",
+                                  description="self-contacts kept and interpenetration on the held-out takes")
+    cli.add_argument("which", nargs="?", default="skeleton", choices=["skeleton", "depth"])
+    cli.add_argument("--json", type=Path, default=None, help="also write the results here")
+    a = cli.parse_args()
+    table = contact_table(a.which, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    print(format_report(table))
+    if a.json is not None:
+        a.json.write_text(json.dumps(table, indent=1))

@@ -39,7 +39,7 @@ from live.retarget.contacts_surface import PROBES, REGIONS, BodySurface, Gaps, m
 from live.retarget.ik import limb_ik
 
 #: Gauss-Newton steps per frame at most (each measures the gaps once).
-_ITERATIONS = 3
+_ITERATIONS = 2
 #: Weight of the prior (the last frame's correction, let go) against the residuals: on the hand
 #: translation (m^2 per m^2) and the swivel (m^2 per rad^2). Small: the goals win, the prior
 #: only steadies what they leave free and damps the steps.
@@ -157,6 +157,7 @@ class ContactKeeper:
         state = self._limited(prior, last, limit)
         if state.any():
             self._apply(glob, loc, pos, saved, joints, wrist0, state)
+        previous = np.zeros((2, 4))
         for _ in range(_ITERATIONS):
             gaps = measure(surface, glob, pos, _ALL, self._reach, self.settings.tau)
             res = self.residuals(gaps, source)
@@ -164,7 +165,13 @@ class ContactKeeper:
             new = state.copy()
             for a, arm in enumerate(ARMS):
                 mine = active & ((gaps.probe == arm.hand) | (gaps.probe == arm.forearm))
-                new[a] += self._step(pos, arm, gaps, res, mine, state[a] - prior[a])
+                step = self._step(pos, arm, gaps, res, mine, state[a] - prior[a])
+                # A step turning back on the last one bounces between goals (out of the belly into
+                # the thigh and back): half of it lands between them.
+                if float(step[:3] @ previous[a, :3]) < 0.0:
+                    step *= 0.5
+                previous[a] = step
+                new[a] += step
                 move = float(np.sqrt(new[a, :3] @ new[a, :3]))
                 if move > MAX_HAND_MOVE:
                     new[a, :3] *= MAX_HAND_MOVE / move
