@@ -1,28 +1,26 @@
 """Self-contacts kept on the avatar and hands and forearms kept out of its body, one frame at a time.
 
-After any retargeter (rotation copy or the network), for each arm:
+After any retargeter (rotation copy or the network), on the avatar's own surface
+(live/retarget/contacts_surface.py), for both arms at once:
 
-1. **Hand.** For every part near the hand (the other hand, head, torso, legs) the avatar's gap
-   is measured on its own surface (softmin over the hand's probes, live/retarget/contacts_surface.py)
-   and given a goal: where the performer is in contact with that part (weight w from
-   live/retarget/contacts_self.py), the performer's gap, at least ``margin``; elsewhere only a
-   floor, min(the performer's gap, ``clearance``) and at least ``margin`` (no sinking in, no
-   touching where the performer does not). The residual w (goal - gap) + (1 - w) max(0, floor -
-   gap) acts along the part's outward direction; a few Gauss-Newton steps find the translation
-   of the hand that meets them all in the least-squares sense (a hand between belly and thigh is
-   pushed out of both). The hand keeps its orientation, so the contact lands on the place of the
-   avatar's part nearest to where the rotation copy put it, in the part's own frame: the same
-   place relative to the part on both bodies, moved onto the avatar's skin at the performer's gap.
-   Between the two hands each arm takes half of the correction.
-2. **Arm IK.** The wrist reaches the new place by two-bone IK (live/retarget/ik.py; the hand keeps
-   its world orientation). Out of reach, the collar turns toward it (at most ``collar_deg``) and
-   the IK runs again.
-3. **Forearm.** The forearm's gaps to torso, head and thighs get the same goals (a forearm's
-   contacts at half weight: viewers notice them less); the elbow swivels about the shoulder-wrist
-   line to meet them (Gauss-Newton on the one angle), which leaves the hand where step 1 put it.
-
-Every residual is a continuous function of the two poses, and weights ramp in and out, so the
-correction adds no jitter and lets go smoothly. A frame with nothing near is left untouched.
+1. **Goals.** Every region near a hand (the other hand and arm, head, torso, legs) gets a gap
+   goal: where the performer is in contact with it (weight w from live/retarget/contacts_self.py),
+   the performer's gap, at least ``margin``; elsewhere only a floor, min(the performer's gap,
+   ``clearance``) and at least ``margin`` (no sinking in, no touching where the performer does
+   not; a hand in contact somewhere keeps only the margin from the rest). Forearms keep the
+   margin. The residual w (goal - gap) + (1 - w) max(0, floor - gap) acts along the region's
+   outward direction; between the two arms each closes half of it.
+2. **Steps.** Damped Gauss-Newton per arm on the hand's translation (the hand keeps its
+   orientation: a contact lands where the rotation copy put the hand in the part's frame, moved
+   onto the avatar's skin at the performer's gap) and the elbow's swivel about the
+   shoulder-wrist line (moves the forearm, leaves the hand); a forearm point moves with a
+   fraction of the hand's translation. The wrist reaches its place by two-bone IK (the hand's
+   world orientation kept); out of reach, the collar turns toward it (at most ``collar_deg``).
+3. **In time.** Each frame starts from the last frame's correction, let go with ``release_s``
+   (also the prior the steps are damped toward); at most _ITERATIONS steps, a step turning back
+   on the last one halved; the correction's change is rate-limited. It follows the motion
+   continuously and, with nothing left to keep, fades out. A frame with nothing near is left
+   exactly as the retargeter made it.
 """
 
 from __future__ import annotations

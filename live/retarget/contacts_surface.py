@@ -3,19 +3,22 @@ hands and forearms, built once per body (open3d), queried per frame with numpy.
 
 The skin is cut into rigid parts by the skinning weights (a vertex belongs to a part when the
 part's joints weigh at least ``PART_WEIGHT`` in it, so neighbouring parts overlap across their
-seams): pelvis, the three spine segments, the collars, head and neck, thighs, shins, hands. Each
-part gets a grid of the signed distance to its own skin, in the rest pose and relative to the
-joint that carries it (the part moves rigidly with that joint's global rotation; near joints that
-bend a lot the skinned surface departs from this by up to about a centimetre, which the contact
-keeper's clearance margin absorbs). Each cell also stores the distance's gradient, so a query
-gives the distance and the direction out of the part, both continuous (trilinear in the cell).
+seams): pelvis, the three spine segments, the collars, head and neck, thighs, shins, upper arms,
+forearms, hands. Each part gets a grid of the signed distance to its own skin, in the rest pose
+and relative to the joint that carries it (the part moves rigidly with that joint's global
+rotation); each cell also stores the distance's gradient and the skin vertex nearest its closest
+point. A query gives the distance and the direction out of the part, both continuous (trilinear
+in the cell), corrected by how far skinning moves that nearest vertex from where the rigid part
+puts it (near joints that bend a lot, a bent spine's belly), and counts it for the region of
+that vertex's heaviest joint (torso, head, each leg, each hand, each arm).
 
-The sign of a part's distance comes from the skin's normals interpolated at the closest point:
-negative inside. Where the closest point lies on the part's open edge (the cut to a neighbouring
-part) the distance counts as outside: that side is the neighbour's, which covers it.
+The sign of a part's distance: the face's normal where the closest point is inside a face, the
+angle-weighted vertex normals interpolated there on an edge or a vertex; negative inside. Where
+the closest point lies on the part's open edge (the cut to a neighbouring part) the distance
+counts as outside: that side is the neighbour's, which covers it.
 
-Probe points are spread over each hand (``HAND_PROBES``) and forearm (``FOREARM_PROBES``) by
-farthest-point sampling; they move rigidly with the wrist and the elbow.
+``PROBE_COUNT`` probe points are spread over each hand and forearm by farthest-point sampling;
+they are posed by skinning, like the mesh.
 
 A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
 parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
@@ -35,7 +38,7 @@ import numpy as np
 
 from live.core import assets
 from live.core.errors import UserInputError
-from live.core.skeleton import JOINT_INDEX, pelvis_height
+from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, pelvis_height
 
 #: Grid cell (m) and the margin of a part's grid around its skin (m): more than every contact
 #: or clearance distance in use.
@@ -50,7 +53,7 @@ PART_WEIGHT = 0.25
 #: Probes per hand and per forearm (the same count: probe sets are measured as one array).
 PROBE_COUNT = 32
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
-MODEL_VERSION = 4
+MODEL_VERSION = 5
 
 
 @dataclass(frozen=True)
@@ -166,6 +169,8 @@ class SurfaceModel:
         object.__setattr__(self, "_strides", np.stack([syz, sz, np.ones_like(sz)], axis=1).astype(np.float64))
         object.__setattr__(self, "_top", dims - 1.000001)
         object.__setattr__(self, "_data", np.asarray(self.data, np.float64))
+        by_joint = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
+        object.__setattr__(self, "vertex_region", by_joint[np.asarray(self.skin_joints, np.int64)[:, 0]])
         dense = np.zeros((len(self.vertices), len(self.rest_joints)))
         np.put_along_axis(dense, np.asarray(self.skin_joints, np.int64), self.skin_weights, axis=1)
         object.__setattr__(self, "dense_weights", dense)
@@ -524,8 +529,17 @@ ALLOWED = np.zeros((len(PROBES), len(PARTS)), bool)
 for _i, _t in enumerate(TARGETS):
     for _parts in _t.parts:
         ALLOWED[_i, list(_parts)] = True
-#: The region of each part (index into REGIONS).
-PART_REGION = np.array([REGIONS.index(p.region) for p in PARTS], np.int64)
+#: REGION_ALLOWED[i, r]: probe set i is tested against region r.
+REGION_ALLOWED = np.zeros((len(PROBES), len(REGIONS)), bool)
+for _i, _t in enumerate(TARGETS):
+    REGION_ALLOWED[_i, list(_t.regions)] = True
+#: The region of a vertex by its heaviest joint (feet with their legs; -1: none).
+JOINT_REGION = {"pelvis": "torso", "spine1": "torso", "spine2": "torso", "spine3": "torso", "left_collar": "torso",
+                "right_collar": "torso", "neck": "head", "head": "head", "left_hip": "left_leg",
+                "left_knee": "left_leg", "left_ankle": "left_leg", "left_foot": "left_leg", "right_hip": "right_leg",
+                "right_knee": "right_leg", "right_ankle": "right_leg", "right_foot": "right_leg",
+                "left_wrist": "left_hand", "right_wrist": "right_hand", "left_shoulder": "left_arm",
+                "left_elbow": "left_arm", "right_shoulder": "right_arm", "right_elbow": "right_arm"}
 
 
 @dataclass(frozen=True)
@@ -554,11 +568,13 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
 
     Broad phase: a part is measured when its bounding sphere comes within ``reach`` (per probe
     set or one value) of the probe set's, and then only at the probes within BAND of its skin's
-    box. A region's gap is the softmin (length ``tau``) over its parts and the set's probes of
-    the signed distance, each part moved rigidly by its joint and then corrected by how far
-    skinning moves the nearest skin vertex out of that rigid place (a bent spine's belly); its
-    direction and point are softmin-weighted too, so that they change continuously as the
-    closest probe or part changes. Regions with no probe that near are left out."""
+    box. Each distance counts for the region its nearest skin vertex belongs to by its heaviest
+    weight (parts overlap across their seams; a region is where the vertices are, as the
+    evaluation cuts the skin). A region's gap is the softmin (length ``tau``) over its probes'
+    distances, each part moved rigidly by its joint and then corrected by how far skinning moves
+    the nearest skin vertex out of that rigid place (a bent spine's belly); its direction and
+    point are softmin-weighted too, so that they change continuously as the closest probe or
+    part changes. Regions with no probe that near are left out."""
     m = surface.model
     probes = np.asarray(probes, np.int64)
     count = len(m.probes[0])
@@ -572,13 +588,9 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     apart = np.sqrt(((centre[:, None] - part_centre[None]) ** 2).sum(-1)) - radius[:, None] \
         - m.radius[None] * surface.scale
     near = ALLOWED[probes] & (apart < np.broadcast_to(np.asarray(reach, np.float64), (len(probes),))[:, None])
-    which, parts = np.nonzero(near)  # row-major: by probe set, then part
+    which, parts = np.nonzero(near)  # by probe set, then part
     if not len(parts):
         return Gaps.empty()
-    # Rows ordered by (probe set, region, part): a region's rows are contiguous.
-    order = np.lexsort((parts, PART_REGION[parts], which))
-    which, parts = which[order], parts[order]
-    region = PART_REGION[parts]
     frames = m.frames[parts]
     rot = glob[frames]  # (P, 3, 3)
     row_pts = pts[which]  # (P, N, 3)
@@ -586,14 +598,22 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     # Only probes within BAND of a part's skin box are sampled; the others are too far to count.
     outside = np.abs(local - m.box_centre[parts][:, None, :]) - m.box_half[parts][:, None, :]
     worst = np.maximum(np.maximum(outside[..., 0], outside[..., 1]), outside[..., 2])
-    r_idx, n_idx = np.nonzero(worst < BAND)  # row-major: entries of a region contiguous
+    r_idx, n_idx = np.nonzero(worst < BAND)
     if not len(r_idx):
         return Gaps.empty()
     out, nearest = m.sample(parts[r_idx], local[r_idx, n_idx])
+    region = m.vertex_region[nearest]
+    probe_of = probes[which[r_idx]]
+    keep = REGION_ALLOWED[probe_of, region]
+    if not keep.any():
+        return Gaps.empty()
+    # Entries grouped by (probe set, region) for the reductions.
+    key = which[r_idx] * len(REGIONS) + region
+    order = np.flatnonzero(keep)[np.argsort(key[keep], kind="stable")]
+    key, r_idx, n_idx, out, nearest = key[order], r_idx[order], n_idx[order], out[order], nearest[order]
     grad = np.einsum("qij,qj->qi", rot[r_idx], out[:, 1:])
     n = grad / np.maximum(np.sqrt(np.einsum("qi,qi->q", grad, grad)), 1e-9)[:, None]
     dist = out[:, 0] * surface.scale
-    key = which[r_idx] * len(REGIONS) + region[r_idx]
     starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
     sizes = np.diff(np.append(starts, len(key)))
     low = np.repeat(np.minimum.reduceat(dist, starts), sizes)
@@ -607,5 +627,4 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     direction = np.add.reduceat(w[:, None] * n, starts, axis=0)
     direction /= np.maximum(np.sqrt(np.einsum("gi,gi->g", direction, direction)), 1e-9)[:, None]
     point = np.add.reduceat(w[:, None] * row_pts[r_idx, n_idx], starts, axis=0) / total[:, None]
-    first = r_idx[starts]
-    return Gaps(probes[which[first]], region[first], gap, direction, point)
+    return Gaps(probes[which[r_idx[starts]]], key[starts] % len(REGIONS), gap, direction, point)
