@@ -225,3 +225,18 @@ def test_contact_clips_put_the_performers_hands_on_its_hips_and_together():
     gaps = _gaps("clapping", body, np.asarray(clap.joints, np.float64))
     closed = _clap_gap(np.arange(8) / 30.0) == 0.0
     assert closed.any() and np.all(gaps[closed] < 0.01) and np.all(gaps[closed] > -0.02)
+
+
+def test_an_avatar_without_skin_on_some_joints_still_keeps_contacts():
+    """A VRM's skin often skips a spine segment: that part is never near, the rest works."""
+    vrm = assets.shared_data_dir() / "avatars" / "godette_vrm0.vrm"
+    if not vrm.is_file():
+        pytest.skip("needs ../shared/data/avatars")
+    from live.body.avatar import load_avatar
+    from live.pipeline.stages import RetargetStage
+
+    avatar = load_avatar(vrm)
+    assert RetargetStage(avatar).contacts
+    surface = body_surface(avatar)
+    glob, pos = np.tile(np.eye(3), (22, 1, 1)), np.asarray(avatar.rest_joints, np.float64)
+    assert np.all(measure(surface, glob, pos, _ALL, 0.05, 0.003).gap > 0.03)  # T-pose: nothing touches

@@ -425,10 +425,15 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         part_faces = faces[member[faces].any(1)]
         frame = JOINT_INDEX[spec.frame]
         if len(part_faces) == 0:
-            raise UserInputError(f"the avatar mesh has no skin weighted to its {spec.name}")
-        lo, dim, data, near = _part_grid(vertices, normals, part_faces, rest[frame], cell)
-        used = vertices[np.unique(part_faces)] - rest[frame]
-        mid = 0.5 * (used.min(0) + used.max(0))
+            # No skin on this joint (a VRM's spine often skips a segment): a part never near.
+            lo, dim = np.zeros(3), np.full(3, 2, np.int64)
+            data = np.tile(np.array([[FAR, 0.0, 0.0, 0.0]], np.float32), (8, 1))
+            near, mid, radius = np.zeros(8, np.int32), np.zeros(3), -1e9
+        else:
+            lo, dim, data, near = _part_grid(vertices, normals, part_faces, rest[frame], cell)
+            used = vertices[np.unique(part_faces)] - rest[frame]
+            mid = 0.5 * (used.min(0) + used.max(0))
+            radius = float(np.sqrt(((used - mid) ** 2).sum(1)).max())
         blocks.append(data)
         nearest.append(near)
         frames.append(frame)
@@ -436,7 +441,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         dims.append(dim)
         bases.append(row)
         centres.append(mid)
-        radii.append(float(np.sqrt(((used - mid) ** 2).sum(1)).max()))
+        radii.append(radius)
         row += len(data)
     dominant = weights.argmax(1)
     probes = []
