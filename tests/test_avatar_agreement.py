@@ -351,7 +351,11 @@ def test_the_avatar_faces_the_camera_and_mirrors_nothing(runs):
         da = avatar[:, JOINT_INDEX[a]] - avatar[:, JOINT_INDEX[b]]
         dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
         c = np.sum(da * dp, 1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
-        assert c.min() > 0.9, (a, c.min())
+        # Hands close together leave their left-right direction to a few mm of noise: judged
+        # where the performer's are at least 60 % of their usual distance apart.
+        gap = np.linalg.norm(dp, axis=1)
+        apart = gap > 0.6 * np.median(gap)
+        assert apart.sum() > 20 and c[apart].min() > 0.9, (a, c[apart].min())
 
 
 # ----------------------------------------------------------------------------- Blender (optional)

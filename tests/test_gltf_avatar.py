@@ -183,7 +183,11 @@ def test_demo_onto_godette(tmp_path, capsys):
         da = joints[0][:, JOINT_INDEX[a]] - joints[0][:, JOINT_INDEX[b]]
         dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
         cos = np.sum(da * dp, axis=1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
-        assert cos.min() > least, (a, cos.min())
+        # Hands close together: their left-right direction is noise (another body's proportions
+        # move it freely); judged where they are at least 60 % of their usual distance apart.
+        gap = np.linalg.norm(dp, axis=1)
+        apart = gap > 0.6 * np.median(gap)
+        assert apart.sum() > 20 and cos[apart].min() > least, (a, cos[apart].min())
 
 
 def _check_bvh_names(tmp_path: Path) -> None:
