@@ -79,6 +79,19 @@ def _add_force(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="overwrite output files that exist")
 
 
+def _retarget_eval_arguments(e: argparse.ArgumentParser) -> None:
+    """The options ``eval retarget`` and ``eval contacts`` share: a motion moved between two bodies."""
+    e.add_argument("--motion", required=True, help="a BVH clip")
+    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
+    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
+    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
+                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
+    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
+    e.add_argument("--max-frames", type=arg.max_frames, default=None)
+    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
+    e.add_argument("--json", action="store_true", help="machine-readable output")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = LivecapParser(prog="livecap", description="Open, ROS-free live human capture: depth cameras and "
                                      "IMU suits -> 3D skeleton -> retargeted avatar, live.")
@@ -198,28 +211,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help=LAG_HELP)
     e.add_argument("--json", action="store_true", help="machine-readable output")
     e = esub.add_parser("retarget", help="retargeting from a source body to a target body")
-    e.add_argument("--motion", required=True, help="a BVH clip")
-    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
-    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
-    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
-                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
-    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
-    e.add_argument("--max-frames", type=arg.max_frames, default=None)
-    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
-    e.add_argument("--json", action="store_true", help="machine-readable output")
+    _retarget_eval_arguments(e)
     e = esub.add_parser("contacts", help="self-contacts and interpenetration of retargeting, correction on and off",
                         description="Retarget a motion from one body to another with the self-contact correction "
                         "and without; report hand-contact recall and precision, hand and forearm penetration and "
                         "the joint metrics of both (docs/retargeting.md, \"Self-contacts\").")
-    e.add_argument("--motion", required=True, help="a BVH clip")
-    e.add_argument("--source-body", default="performer", help="the performer's body (default: performer)")
-    e.add_argument("--target-body", default="default", help="the avatar's body (default: default)")
-    e.add_argument("--from", dest="from_", choices=["skeleton", "depth"], default="skeleton",
-                   help="start from ground-truth skeletons or run the whole chain from the virtual camera")
-    e.add_argument("--retarget", choices=["analytic", "learned"], default="analytic")
-    e.add_argument("--max-frames", type=arg.max_frames, default=None)
-    e.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help="with --from depth: " + LAG_HELP)
-    e.add_argument("--json", action="store_true", help="machine-readable output")
+    _retarget_eval_arguments(e)
 
     p = sub.add_parser("train", help="train a model (needs the train extra: pip install 'livecap[train]')",
                        description="Train and export a model with its model card. Extra arguments go to the trainer "
