@@ -14,3 +14,10 @@ def shared_bvh() -> Path:
     if not SHARED_BVH.is_dir():
         pytest.skip("../shared/data/bvh is not present")
     return SHARED_BVH
+
+
+def pytest_collection_modifyitems(config, items):
+    """Ray-marked tests run last: Ray leaves native threads in the test process after shutdown,
+    and a fork-based process pool started after them (the training-data generators) can
+    deadlock in a child that inherited a held lock."""
+    items.sort(key=lambda item: item.get_closest_marker("ray") is not None)
