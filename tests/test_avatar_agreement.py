@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -29,6 +28,7 @@ from live.app.cli import main
 from live.body.gltf_avatar import read_gltf_humanoid
 from live.core.assets import shared_data_dir
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
+from tests.glb_files import glb_chunks, write_glb
 
 GODETTE = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
 pytestmark = pytest.mark.skipif(not GODETTE.is_file(), reason="../shared/data/avatars/godette_vrm0.vrm is absent")
@@ -36,22 +36,6 @@ MM = 1e-3
 
 
 # ----------------------------------------------------------------------------- files
-
-
-def _glb_chunks(path: Path) -> tuple[dict, bytes]:
-    data = path.read_bytes()
-    jlen = struct.unpack_from("<I", data, 12)[0]
-    blen = struct.unpack_from("<I", data, 20 + jlen)[0]
-    return json.loads(data[20:20 + jlen]), data[28 + jlen:28 + jlen + blen]
-
-
-def _write_glb(path: Path, doc: dict, blob: bytes) -> Path:
-    js = json.dumps(doc).encode()
-    js += b" " * (-len(js) % 4)
-    blob += b"\0" * (-len(blob) % 4)
-    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(blob), 0x004E4942) + blob
-    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
-    return path
 
 
 def _quat_matrix(x, y, z, w) -> np.ndarray:
@@ -104,18 +88,18 @@ def _world(doc: dict, locals_: list[np.ndarray]) -> list[np.ndarray]:
 def _sparse(src: Path, out: Path) -> Path:
     """A VRM 0.x copy mapping no neck, shoulders or toes (optional in VRM): those nodes stay in the
     tree as plain nodes, the joints become points between bones."""
-    doc, blob = _glb_chunks(src)
+    doc, blob = glb_chunks(src)
     drop = {"neck", "leftShoulder", "rightShoulder", "leftToes", "rightToes"}
     humanoid = doc["extensions"]["VRM"]["humanoid"]
     humanoid["humanBones"] = [b for b in humanoid["humanBones"] if b["bone"] not in drop]
-    return _write_glb(out, doc, blob)
+    return write_glb(out, doc, blob)
 
 
 def _rolled(src: Path, out: Path, seed: int = 0) -> Path:
     """A copy whose every node has its rest frame turned by a random rotation (its children's
     translations and the skin's inverse bind matrices compensated): the same mesh and skeleton,
     none of its bones with an identity rest rotation."""
-    doc, blob = _glb_chunks(src)
+    doc, blob = glb_chunks(src)
     rng = np.random.default_rng(seed)
     nodes = doc["nodes"]
     world = _world(doc, [_local(n) for n in nodes])
@@ -144,7 +128,7 @@ def _rolled(src: Path, out: Path, seed: int = 0) -> Path:
         for k, j in enumerate(skin["joints"]):
             ibm = np.linalg.inv(new_world[j]).T.astype("<f4")  # column-major
             data[start + 64 * k:start + 64 * (k + 1)] = ibm.tobytes()
-    return _write_glb(out, doc, bytes(data))
+    return write_glb(out, doc, bytes(data))
 
 
 # ----------------------------------------------------------------------------- the VMC receiver
@@ -193,7 +177,7 @@ def _receiver_joints(path: Path, frames: list[dict[str, tuple]]) -> tuple[dict[s
     """Per humanoid bone (Unity name), its world positions (T, 3) over the frames, the file's node tree
     posed by the received values in Unity's frame as UniVRM builds it. Also checks that each bone's
     received localPosition is the file's own (but the hips, which carry the motion)."""
-    doc, _ = _glb_chunks(path)
+    doc, _ = glb_chunks(path)
     ext = doc["extensions"]
     if "VRMC_vrm" in ext:
         bones = {_unity_name(b): v["node"] for b, v in ext["VRMC_vrm"]["humanoid"]["humanBones"].items()}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import struct
 from pathlib import Path
 
 import numpy as np
@@ -13,34 +12,16 @@ from live.app.cli import main
 from live.body.gltf_avatar import read_gltf_humanoid
 from live.core.assets import shared_data_dir
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
+from tests.glb_files import glb_chunks, write_glb
 
 GODETTE = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
 needs_godette = pytest.mark.skipif(not GODETTE.is_file(), reason="../shared/data/avatars/godette_vrm0.vrm is absent")
 
 
-def _glb_chunks(path: Path) -> tuple[dict, bytes]:
-    """(JSON chunk, BIN chunk) of a GLB, read by hand (the tests edit the JSON)."""
-    data = path.read_bytes()
-    assert data[:4] == b"glTF"
-    jlen = struct.unpack_from("<I", data, 12)[0]
-    doc = json.loads(data[20:20 + jlen])
-    blen = struct.unpack_from("<I", data, 20 + jlen)[0]
-    return doc, data[28 + jlen:28 + jlen + blen]
-
-
-def _write_glb(path: Path, doc: dict, blob: bytes) -> Path:
-    js = json.dumps(doc).encode()
-    js += b" " * (-len(js) % 4)
-    blob += b"\0" * (-len(blob) % 4)
-    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(blob), 0x004E4942) + blob
-    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
-    return path
-
-
 def _file_bone_positions() -> dict[str, np.ndarray]:
     """World rest position of each humanoid bone, summed along the node tree by hand (Godette's nodes
     carry translations only: checked)."""
-    doc, _ = _glb_chunks(GODETTE)
+    doc, _ = glb_chunks(GODETTE)
     parent = {c: i for i, n in enumerate(doc["nodes"]) for c in n.get("children", [])}
     out = {}
     for b in doc["extensions"]["VRM"]["humanoid"]["humanBones"]:
@@ -107,7 +88,7 @@ def test_vrm1_conversion_gives_the_same_body(tmp_path):
 
     out = tmp_path / "godette_vrm1.vrm"
     convert(GODETTE, out)
-    doc, _ = _glb_chunks(out)
+    doc, _ = glb_chunks(out)
     assert "VRMC_vrm" in doc["extensions"] and "VRM" not in doc["extensions"]
     a, b = read_gltf_humanoid(GODETTE), read_gltf_humanoid(out)
     assert b.kind == "vrm1" and not b.turned
@@ -129,12 +110,12 @@ def test_vrm1_thumb_names_give_the_same_extra_bones(tmp_path):
 
     out = tmp_path / "godette_vrm1.vrm"
     convert(GODETTE, out)
-    doc, blob = _glb_chunks(out)
+    doc, blob = glb_chunks(out)
     bones = doc["extensions"]["VRMC_vrm"]["humanoid"]["humanBones"]
     for side in ("left", "right"):
         prox, inter = bones.pop(f"{side}ThumbProximal"), bones.pop(f"{side}ThumbIntermediate")
         bones[f"{side}ThumbMetacarpal"], bones[f"{side}ThumbProximal"] = prox, inter
-    renamed = _write_glb(tmp_path / "thumbs_vrm1.vrm", doc, blob)
+    renamed = write_glb(tmp_path / "thumbs_vrm1.vrm", doc, blob)
     want = _extra(read_gltf_humanoid(GODETTE).body)
     assert len(want) == 24 and want["LeftThumbIntermediate"][0] == "LeftThumbProximal"
     for path in (out, renamed):
@@ -148,10 +129,10 @@ def test_vrm1_thumb_names_give_the_same_extra_bones(tmp_path):
 @needs_godette
 def test_plain_skin_maps_by_bone_names(tmp_path):
     """Without the VRM extension the skin's bone names still give the skeleton (spine joints apart)."""
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     del doc["extensions"]["VRM"]
     doc["extensionsUsed"].remove("VRM")
-    h = read_gltf_humanoid(_write_glb(tmp_path / "skin.glb", doc, blob))
+    h = read_gltf_humanoid(write_glb(tmp_path / "skin.glb", doc, blob))
     ref = read_gltf_humanoid(GODETTE).body.rest_joints
     assert h.kind == "skin"
     limbs = [i for i, n in enumerate(JOINT_NAMES) if n.startswith(("left_", "right_")) or n in ("neck", "head")]
@@ -226,34 +207,34 @@ def test_text_file_named_vrm(tmp_path, capsys):
 
 @needs_godette
 def test_glb_without_vrm_and_skin(tmp_path, capsys):
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     del doc["extensions"]["VRM"]
     doc["extensionsUsed"].remove("VRM")
     doc.pop("skins")
     for node in doc["nodes"]:
         node.pop("skin", None)
-    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "mesh.vrm", doc, blob))
+    line = _cli_error(tmp_path, capsys, write_glb(tmp_path / "mesh.vrm", doc, blob))
     assert "no VRM humanoid and no skin" in line
 
 
 @needs_godette
 def test_vrm_missing_a_required_bone(tmp_path, capsys):
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     bones = doc["extensions"]["VRM"]["humanoid"]["humanBones"]
     doc["extensions"]["VRM"]["humanoid"]["humanBones"] = [b for b in bones if b["bone"] != "leftLowerArm"]
-    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "no_elbow.vrm", doc, blob))
+    line = _cli_error(tmp_path, capsys, write_glb(tmp_path / "no_elbow.vrm", doc, blob))
     assert "lacks required bones: leftLowerArm" in line
 
 
 @needs_godette
 def test_broken_buffer(tmp_path, capsys):
-    doc, blob = _glb_chunks(GODETTE)
-    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "cut.vrm", doc, blob[:len(blob) // 2]))
+    doc, blob = glb_chunks(GODETTE)
+    line = _cli_error(tmp_path, capsys, write_glb(tmp_path / "cut.vrm", doc, blob[:len(blob) // 2]))
     assert "bytes" in line
 
 
 def _mesh_only(tmp_path: Path, source: Path, name: str) -> Path:
-    doc, blob = _glb_chunks(source)
+    doc, blob = glb_chunks(source)
     for key in ("VRM", "VRMC_vrm"):
         doc["extensions"].pop(key, None)
         if key in doc.get("extensionsUsed", []):
@@ -261,7 +242,7 @@ def _mesh_only(tmp_path: Path, source: Path, name: str) -> Path:
     doc.pop("skins")
     for node in doc["nodes"]:
         node.pop("skin", None)
-    return _write_glb(tmp_path / name, doc, blob)
+    return write_glb(tmp_path / name, doc, blob)
 
 
 @needs_godette
@@ -309,14 +290,14 @@ def test_a_pose_is_posed_into_the_t_pose(tmp_path):
     bone lengths kept, and her mesh comes with them through her own skin."""
     import math
 
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     half = math.radians(40) / 2
     for node in doc["nodes"]:
         if node["name"] in ("upper_arm.l_Armature", "upper_arm.r_Armature"):
             sign = 1 if ".l" in node["name"] else -1  # VRM 0.x: her left arm points along -x
             node["rotation"] = [0, 0, sign * math.sin(half), math.cos(half)]
     t_pose = read_gltf_humanoid(GODETTE).body
-    posed = read_gltf_humanoid(_write_glb(tmp_path / "a_pose.vrm", doc, blob)).body
+    posed = read_gltf_humanoid(write_glb(tmp_path / "a_pose.vrm", doc, blob)).body
     j, ref = posed.rest_joints.astype(np.float64), t_pose.rest_joints.astype(np.float64)
     for side in ("left", "right"):
         sh, el, wr = (JOINT_INDEX[f"{side}_{n}"] for n in ("shoulder", "elbow", "wrist"))
@@ -332,18 +313,18 @@ def test_a_pose_is_posed_into_the_t_pose(tmp_path):
 @pytest.mark.parametrize("field, value", [(("accessors", 0, "count"), "many"), (("nodes", 5, "children"), [[1]]),
                                           (("skins", 0, "joints"), None), (("accessors", 2, "bufferView"), 999)])
 def test_malformed_fields_are_one_line(tmp_path, capsys, field, value):
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     target = doc
     for key in field[:-1]:
         target = target[key]
     target[field[-1]] = value
-    line = _cli_error(tmp_path, capsys, _write_glb(tmp_path / "malformed.vrm", doc, blob))
+    line = _cli_error(tmp_path, capsys, write_glb(tmp_path / "malformed.vrm", doc, blob))
     assert "malformed.vrm" in line
 
 
 @needs_godette
 def test_gltf_json_with_a_bin_file_beside_it(tmp_path, capsys):
-    doc, blob = _glb_chunks(GODETTE)
+    doc, blob = glb_chunks(GODETTE)
     doc["buffers"][0]["uri"] = "godette.bin"
     (tmp_path / "godette.bin").write_bytes(blob)
     (tmp_path / "godette.gltf").write_text(json.dumps(doc))
