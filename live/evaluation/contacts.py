@@ -168,17 +168,14 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     ``source_skeletons`` returns it for this motion and source (reused across avatars)."""
     from live.body.library import load_body
     from live.body.skinning import lbs
-    from live.evaluation.retarget import _on_body, make_retargeter, prepare_motion, source_skeletons
+    from live.evaluation.retarget import _on_body, check_options, make_retargeter, prepare_motion, source_skeletons
     from live.motion.rig_mapping import load_motion
     from live.retarget.analytic import local_rotations_from_joints
     from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
     from live.retarget.contacts_self import ContactSettings
     from live.retarget.contacts_surface import body_surface
 
-    if from_ not in ("skeleton", "depth"):
-        raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
-    if retarget not in ("analytic", "learned"):
-        raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+    check_options(from_, retarget)
     if isinstance(motion, (str, Path)):
         motion = load_motion(motion)
     motion = prepare_motion(motion, fps, max_frames)

@@ -104,6 +104,14 @@ def depth_skeletons(motion, source_body, *, camera: str = "oak-d", seed: int = 0
     return out, found
 
 
+def check_options(from_: str, retarget: str) -> None:
+    """The evaluation's source (``--from``) and retargeter names, or a one-line user error."""
+    if from_ not in ("skeleton", "depth"):
+        raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
+    if retarget not in ("analytic", "learned"):
+        raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+
+
 def prepare_motion(motion, fps: float = 30.0, max_frames: int | None = None):
     """A Motion (or BVH path) without a leading bind pose (``cleaning.trim_bind_pose``: 76 of
     the 119 shared clips, three of the four held-out ones, start with a T-pose frame the take then
@@ -139,10 +147,7 @@ def evaluate_retarget(motion, source_body, target_body, from_: str = "skeleton",
     from live.motion.cleaning import trim_bind_pose
     from live.motion.rig_mapping import load_motion
 
-    if from_ not in ("skeleton", "depth"):
-        raise UserInputError(f"unknown --from {from_!r}; choose skeleton or depth")
-    if retarget not in ("analytic", "learned"):
-        raise UserInputError(f"unknown retargeter {retarget!r}; choose analytic or learned")
+    check_options(from_, retarget)
     if isinstance(motion, (str, Path)):
         motion = load_motion(motion)
     cut = motion.num_frames - trim_bind_pose(motion).num_frames  # reported: the clip is shorter
