@@ -22,28 +22,20 @@ TILE = (320, 240)
 
 def scene_tile(job) -> np.ndarray:
     """The depth image of a realism job's middle frame, as run_job renders it, with a caption."""
-    from sim.postures import apply_posture
-    from sim.sensor_realism import random_extras, random_posture
+    from sim.sensor_realism import random_extras, realism_motion
     from sim.skeleton_data import body_by_name, clip_motion, grounded_joints, random_view
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)
-    posture = random_posture(np.random.default_rng([job.seed, 17]))
-    motion = apply_posture(clip_motion(job.clip), posture)
+    motion, posture = realism_motion(clip_motion(job.clip), job.seed)
     body = body_by_name(job.body)
     root, joints = grounded_joints(motion, body)
     i = len(root) // 2
     shift = np.array([joints[i, 0, 0], 0.0, joints[i, 0, 2]])
     root, joints = root - shift, joints - shift
     camera, room = random_view(job, rng)
-    extras = random_extras(rng, body, joints, np.array([i]), camera.camera_to_world, job.closeup)
+    extras = random_extras(rng, body, joints, np.array([i]), camera.camera_to_world, job.closeup, posture)
     room = extras.room(room)
-    if posture == "seated":  # on a chair, as run_job seats them
-        from dataclasses import replace
-
-        from sim.postures import seat_boxes
-
-        room = replace(room, boxes=room.boxes + seat_boxes(joints[i:i + 1]))
     scene = SyntheticScene(motion=motion, body=body, camera=camera, root=root, joints=joints)
     depth = camera.render(*extras.mesh(scene.vertices(i), body, joints[i], i), room=room)
     img = cv2.applyColorMap(np.clip(depth / 5000.0 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)

@@ -364,9 +364,7 @@ def measure_depth(z: np.ndarray, cos: np.ndarray, preset: CameraPreset, noise: N
     if noise.range_limits:
         lo, hi = preset.min_range_m * 1000.0, min(preset.max_range_m * 1000.0, hi)
     valid &= np.isfinite(depth_mm) & (depth_mm >= np.float32(lo)) & (depth_mm <= np.float32(hi))
-    out = np.rint(np.where(valid, depth_mm, np.float32(0.0))).astype(np.uint16)
-    out[~valid] = 0
-    return out
+    return np.rint(np.where(valid, depth_mm, np.float32(0.0))).astype(np.uint16)
 
 
 def _stereo_depth(z: np.ndarray, preset: CameraPreset, noise: NoiseModel,

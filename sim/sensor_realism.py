@@ -39,6 +39,15 @@ def random_posture(rng: np.random.Generator) -> str:
     return "clip"
 
 
+def realism_motion(motion, seed: int):
+    """(the job's motion in its posture, the posture): drawn from the job's seed alone, so the
+    scene's other draws do not depend on it."""
+    from sim.postures import apply_posture
+
+    posture = random_posture(np.random.default_rng([seed, 17]))
+    return apply_posture(motion, posture), posture
+
+
 def random_noise(rng: np.random.Generator):
     """A sensor noise model drawn around each sensor's typical values (sim.depth_camera)."""
     from sim.depth_camera import NoiseModel
@@ -104,9 +113,9 @@ class SceneExtras:
 
 
 def random_extras(rng: np.random.Generator, body, joints: np.ndarray, frames: np.ndarray,
-                  camera_to_world: np.ndarray, closeup: bool) -> SceneExtras:
+                  camera_to_world: np.ndarray, closeup: bool, posture: str = "clip") -> SceneExtras:
     """Draw a job's SceneExtras. joints (T, 22, 3) world of the performer (near the origin);
-    frames the job's frame indices."""
+    frames the job's frame indices; a seated performer gets a chair under them."""
     from sim.depth_camera import closed_mesh_winding
 
     eye = np.asarray(camera_to_world, np.float64)[[0, 2], 3]
@@ -133,9 +142,16 @@ def random_extras(rng: np.random.Generator, body, joints: np.ndarray, frames: np
         other = np.zeros((int(np.max(frames)) + 1, *joints.shape[1:]), np.float64)
         other[frames] = joints[order] - joints[order, JOINT_INDEX["pelvis"]][:, None] * [1.0, 0.0, 1.0] + offset
         bystander = other
+    if posture == "seated":
+        from sim.postures import seat_boxes
+
+        seat = seat_boxes(joints[np.asarray(frames)])
     outfit = random_outfit(rng) if rng.random() < 0.85 else None
     outward = closed_mesh_winding(np.asarray(body.vertices, np.float32), np.asarray(body.faces)) or 1
-    return SceneExtras(outfit, tuple(boxes), bystander, bool(rng.random() < HIDE_EXTRINSICS_SHARE), outward)
+    hide = bool(rng.random() < HIDE_EXTRINSICS_SHARE)
+    if posture == "seated":
+        boxes += list(seat)
+    return SceneExtras(outfit, tuple(boxes), bystander, hide, outward)
 
 
-__all__ = ["REALISM_VERSION", "POSTURE_ODDS", "SceneExtras", "random_posture", "random_noise", "realistic_view", "random_extras"]
+__all__ = ["REALISM_VERSION", "POSTURE_ODDS", "SceneExtras", "random_posture", "realism_motion", "random_noise", "realistic_view", "random_extras"]

@@ -249,11 +249,9 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     motion, body = clip_motion(job.clip), body_by_name(job.body)
     posture = "clip"
     if job.realism:
-        from sim.postures import apply_posture
-        from sim.sensor_realism import random_posture
+        from sim.sensor_realism import realism_motion
 
-        posture = random_posture(np.random.default_rng([job.seed, 17]))
-        motion = apply_posture(motion, posture)
+        motion, posture = realism_motion(motion, job.seed)
     root, joints = grounded_joints(motion, body)
     t = len(root)
     span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
@@ -270,14 +268,8 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import random_extras
 
-        extras = random_extras(rng, body, joints, frames, c2w, job.closeup)
+        extras = random_extras(rng, body, joints, frames, c2w, job.closeup, posture)
         room = extras.room(room)
-        if posture == "seated":
-            from dataclasses import replace
-
-            from sim.postures import seat_boxes
-
-            room = replace(room, boxes=room.boxes + seat_boxes(joints[frames]))
     # Training samples: one pass at the full stride; validation samples: the runtime's
     # coarse-to-fine pass (both draw uniformly from the same person pixels; docs/skeleton.md).
     coarse = PreprocessConfig.coarse_stride if job.split != "train" else None

@@ -63,6 +63,11 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
 
     rng = np.random.default_rng(job.seed)
     motion, body = _motion_at_fps(job.clip), body_by_name(job.body)
+    posture = "clip"
+    if job.realism:
+        from sim.sensor_realism import realism_motion
+
+        motion, posture = realism_motion(motion, job.seed)
     root, joints = grounded_joints(motion, body)
     span = min(len(root), SEQUENCE_FRAMES)
     start = int(rng.integers(0, len(root) - span + 1))
@@ -77,7 +82,7 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import random_extras
 
-        extras = random_extras(rng, body, joints, window, c2w, job.closeup)
+        extras = random_extras(rng, body, joints, window, c2w, job.closeup, posture)
         room = extras.room(room)
     given = np.eye(4) if extras is not None and extras.hide_extrinsics else c2w
     finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS))  # the runtime's settings

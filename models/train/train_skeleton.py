@@ -30,7 +30,6 @@ from live.core.skeleton import UPPER_BODY_JOINTS
 from models.train.skeleton_nets import build, count_parameters, export_onnx
 
 WEIGHTS = assets.weights_dir()
-UPPER_JOINTS = UPPER_BODY_JOINTS
 
 
 @dataclass(frozen=True)
@@ -151,7 +150,7 @@ def metrics(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray | None = None)
     out = {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
            "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 4),
            "per_joint_mm": {n: round(1000 * float(e), 1) for n, e in zip(JOINT_NAMES, per_joint_mpjpe(pred, gt))}}
-    up = list(UPPER_JOINTS)
+    up = list(UPPER_BODY_JOINTS)
     out["upper_body_mpjpe_mm"] = round(1000 * mpjpe(pred[:, up], gt[:, up]), 1)
     if visible is not None:
         err = np.linalg.norm(pred - gt, axis=-1)
