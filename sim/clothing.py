@@ -62,9 +62,9 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
     fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
+    # each face's normal added to its three corners: a weighted bincount per axis (faster than add.at)
+    corners, weights = f.reshape(-1), np.repeat(fn, 3, axis=0)
+    n = np.stack([np.bincount(corners, weights[:, k], minlength=len(v)) for k in range(3)], axis=1)
     length = np.linalg.norm(n, axis=1, keepdims=True)
     return (n / np.maximum(length, 1e-12)).astype(np.float32)
 
