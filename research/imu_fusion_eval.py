@@ -75,7 +75,9 @@ def _feed(data: CaseData, stage, with_depth: bool) -> np.ndarray:
             k += 1
         result = FrameResult(t_ns=int(t))
         if with_depth and np.isfinite(data.depth[f]).all():
-            result.skeleton = SkeletonFrame(int(t), data.depth[f].astype(np.float32), data.conf[f].astype(np.float32))
+            result.depth = data.depth_frame(f)
+            result.skeleton = SkeletonFrame(int(t), data.depth[f].astype(np.float32), data.conf[f].astype(np.float32),
+                                            camera_to_world=data.camera_to_world[f])
         if stage.process(result) and result.skeleton is not None:
             out[f] = result.skeleton.joints
     return out

@@ -10,12 +10,16 @@ returns no depth: within ``ARM_RADIUS_M`` of its bones from a third down the upp
 blanked in those frames.
 
 ``load_case(case)`` returns a ``CaseData``: every suit packet decoded (in arrival order) and,
-per camera frame, the depth skeleton (NaN rows where the stage found nobody), its confidence and
-the ground truth, cached as a plain .npz under ``.cache/imu_fusion`` (delete it to rebuild).
+per camera frame, the depth skeleton (NaN rows where the stage found nobody), its confidence, the
+ground truth and the depth image itself (the fusion stage reads it: is a limb seen where the suit
+puts it), cached as a compressed .npz under ``.cache/imu_fusion/<key>``, the key a hash of the
+skeleton stage's model files (the regressor and the temporal model beside it) and of
+``CACHE_VERSION``: a new shipped model makes new depth skeletons, never stale ones.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import threading
 from dataclasses import dataclass
@@ -38,6 +42,8 @@ from sim.replay import ReplaySource
 from sim.synth import SYNTH_WALL_TIME_NS, T0_NS, CameraPlacement, SyntheticScene, body_npz_bytes
 
 CACHE = assets.cache_dir("imu_fusion")
+#: Bumped when what a case holds changes (its arrays, the session it is made from).
+CACHE_VERSION = 2
 #: Per-axis std (deg) of how far each joint of the performer's held calibration pose is from the
 #: ideal T-pose: what the calibration then takes for the pockets' mounting.
 POSE_ERROR_DEG = 5.0
@@ -80,7 +86,9 @@ class CaseData:
     sensors/quats (concatenated, count (P,)). Frames: t (F,), depth (F, 22, 3) NaN rows where no
     skeleton, conf (F, 22), truth (F, 22, 3), lost (F,) frames in the loss window. meta: the suit
     stream's metadata; start_root (3,), start_yaw: where the performer stood and faced at the
-    first frame (the marked start of an IMU-only run)."""
+    first frame (the marked start of an IMU-only run). The camera: depth_mm (F, H, W) uint16 (the
+    frames as the skeleton stage saw them, a lost limb blanked), intrinsics (3, 3),
+    camera_to_world (F, 4, 4)."""
 
     case: Case
     packet_t: np.ndarray
@@ -95,6 +103,13 @@ class CaseData:
     meta: dict
     start_root: np.ndarray
     start_yaw: float
+    depth_mm: np.ndarray
+    intrinsics: np.ndarray
+    camera_to_world: np.ndarray
+
+    def depth_frame(self, f: int) -> DepthFrame:
+        return DepthFrame(t_ns=int(self.t[f]), sensor="depth", camera_to_world=self.camera_to_world[f],
+                          depth_mm=self.depth_mm[f], intrinsics=self.intrinsics)
 
     def packets(self) -> list[MocapPacket]:
         ends = np.cumsum(self.packet_count)
@@ -160,12 +175,12 @@ class _Collector:
             self.packets.append(frame)
 
     def process(self, result: FrameResult) -> bool:
-        sk, truth = result.skeleton, result.truth
+        sk, truth, depth = result.skeleton, result.truth, result.depth
         nan = np.full((NUM_JOINTS, 3), np.nan)
         self.frames.append((result.t_ns, nan if sk is None else np.asarray(sk.joints, np.float64),
                             np.zeros(NUM_JOINTS) if sk is None else np.asarray(sk.confidence, np.float64),
                             nan if truth is None else np.asarray(truth.joints, np.float64),
-                            None if truth is None else truth))
+                            None if truth is None else truth, depth))
         return True
 
 
@@ -187,14 +202,33 @@ def run_depth_stage(case: Case, session: Path) -> CaseData:
                     truth=np.stack([f[3] for f in col.frames]),
                     lost=np.array([case.lost(round((ti - T0_NS) * fps / 1e9) / fps) for ti in t]),
                     meta=meta, start_root=np.asarray(first.root, np.float64),
-                    start_yaw=float(yaw_of(np.asarray(first.rotations[0], np.float64))))
+                    start_yaw=float(yaw_of(np.asarray(first.rotations[0], np.float64))),
+                    depth_mm=np.stack([f[5].depth_mm for f in col.frames]),
+                    intrinsics=np.asarray(col.frames[0][5].intrinsics, np.float64),
+                    camera_to_world=np.stack([np.asarray(f[5].camera_to_world, np.float64) for f in col.frames]))
 
 
-_ARRAYS = ("packet_t", "packet_count", "sensors", "quats", "t", "depth", "conf", "truth", "lost", "start_root")
+_ARRAYS = ("packet_t", "packet_count", "sensors", "quats", "t", "depth", "conf", "truth", "lost", "start_root",
+           "depth_mm", "intrinsics", "camera_to_world")
 
 
-def load_case(case: Case, cache: Path = CACHE) -> CaseData:
-    """The case from the cache, made and run through the depth stage the first time."""
+def model_key() -> str:
+    """A hash of the skeleton stage's model files (the shipped regressor and its online temporal
+    model) and CACHE_VERSION: the cache folder of cases made behind them."""
+    from models.skeleton.runtime import DEFAULT_MODEL
+    from models.skeleton.temporal import temporal_model_path
+
+    h = hashlib.sha1(f"v{CACHE_VERSION}".encode())
+    for path in (DEFAULT_MODEL, temporal_model_path(0, DEFAULT_MODEL)):
+        h.update(path.name.encode())
+        h.update(path.read_bytes() if path.is_file() else b"absent")
+    return h.hexdigest()[:12]
+
+
+def load_case(case: Case, cache: Path | None = None) -> CaseData:
+    """The case from the cache (default: the folder of the shipped model files,
+    ``CACHE / model_key()``), made and run through the depth stage the first time."""
+    cache = CACHE / model_key() if cache is None else cache
     path = cache / f"{case.name}.npz"
     if path.is_file():
         z = np.load(path, allow_pickle=False)
@@ -205,5 +239,8 @@ def load_case(case: Case, cache: Path = CACHE) -> CaseData:
     write_case(case, session)
     data = run_depth_stage(case, session)
     session.unlink()
-    np.savez(path, meta=json.dumps(data.meta), start_yaw=data.start_yaw, **{k: getattr(data, k) for k in _ARRAYS})
+    part = path.with_suffix(".part.npz")  # a run stopped while writing leaves no half case
+    np.savez_compressed(part, meta=json.dumps(data.meta), start_yaw=data.start_yaw,
+                        **{k: getattr(data, k) for k in _ARRAYS})
+    part.replace(path)
     return data

@@ -15,7 +15,9 @@ Per depth frame (``Fuser.update``), with the suit's orientations aligned to the 
    (the same for x, y and z), solved twice: depth joints far from the first fit (beyond what
    their noise and the bone's explain: a limb the regressor lost but still reports) are
    down-weighted (Cauchy) in the second. A bone the suit knows well carries a limb depth lost;
-   a bone it knows badly follows depth.
+   a bone it knows badly follows depth. With the depth image at hand, a limb the image does not
+   show where the suit puts it (``live.imu.fusion_visibility``: hidden, out of view, covered) is
+   left to the suit: the regressor keeps reporting such an arm, with confidence, where it guesses.
 4. Without depth (no person in the frame) the suit poses the skeleton at a root moved by foot
    odometry from the last fused one.
 
@@ -27,18 +29,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.core.frames import SkeletonFrame
-from live.core.heading import yaw_between, yaw_quat
+from live.core.frames import DepthFrame, SkeletonFrame
+from live.core.heading import wrap_angle, yaw_between, yaw_quat
 from live.core.kinematics import joints_from_global_quats, local_rotations
 from live.core.rotations import quat_multiply, quat_rotate
 from live.core.skeleton import BONES, CHILDREN, JOINT_INDEX, NUM_JOINTS, joints_from_offsets, rest_offsets
 from live.core.timing import frame_interval_s, seconds_between
 from live.imu.calibration import Calibration
-from live.imu.fusion_filters import HeadingFilter, SensorFilter
+from live.imu.fusion_filters import HeadingFilter, SensorFilter, majority_angle
+from live.imu.fusion_visibility import seen_fraction
 from live.imu.suit_skeleton import FootOdometry, SuitPose, fill_globals
 
 _PARENT = np.array([p for p, _ in BONES])
 _CHILD = np.array([c for _, c in BONES])
+#: Bones inside a limb (from a hip or shoulder down): the depth image is asked whether it shows them.
+_LIMB_BONES = np.array([b for b, (p, _) in enumerate(BONES) if p in
+                        {JOINT_INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("hip", "knee", "ankle", "shoulder", "elbow")}])
 #: Incidence of the 21 bones: (21, 22), +1 at the child, -1 at the parent.
 INCIDENCE = np.zeros((len(BONES), NUM_JOINTS))
 INCIDENCE[np.arange(len(BONES)), _CHILD] = 1.0
@@ -132,7 +138,10 @@ class RestShape:
 #: The depth skeleton's noise per joint and axis (m) where the depth supports the joint
 #: (confidence > 0): RMS errors of the skeleton stage on sessions of the fusion's tuning clips and
 #: bodies (CMU subject 7 on adult_male_average and short_male; ``python -m
-#: research.imu_fusion_eval --tune`` re-measures them on its own cases, 0.011-0.037 m).
+#: research.imu_fusion_eval --tune`` re-measures them on its own cases, 0.011-0.037 m behind the
+#: regressor they were measured with). Behind the regressor shipped since, the tuning cases measure
+#: 0.009-0.039 m; with those the tuning cases came out no better (fused 28.0 mm either way, lost
+#: limbs 40.2 against 38.8 mm), so these stay.
 DEPTH_STD = np.array([0.017, 0.020, 0.020, 0.026, 0.024, 0.020, 0.029, 0.024, 0.020, 0.031, 0.028, 0.023,
                       0.021, 0.024, 0.023, 0.021, 0.023, 0.020, 0.025, 0.029, 0.040, 0.039])
 #: Joints inside the body: the depth never supports them (confidence ~0), and they are no worse
@@ -184,14 +193,18 @@ class Fuser:
     worth less than independent ones (the depth stage's errors last: its temporal model, a pose
     it misreads for a while), dividing what the filters learn from each; interp_window / interp_prior: frames the suit variance of
     bones without a sensor is averaged over, and how many the interp_std guess counts for; gate / clear_frames: when a limb's depth joints are taken for
-    lost and found again (``_lost_limbs``); filter options: ``heading`` (HeadingFilter) and ``sensor``
-    (SensorFilter) keyword dicts."""
+    lost and found again (``_lost_limbs``); seen_min / seen_radius: a limb bone of which the depth
+    image shows less than this share within this distance (m) where the suit puts it is unseen
+    (``_unseen_limbs``: its depth joint pulls nothing and teaches nothing); heading_votes: how many
+    first heading measurements vote on where it starts; filter options: ``heading`` (HeadingFilter) and
+    ``sensor`` (SensorFilter) keyword dicts."""
 
     def __init__(self, calibration: Calibration, *, template: np.ndarray | None = None, unsupported: float = 6.0,
                  interp_std: float = np.radians(20.0), imu_std: float = np.radians(2.0), length_std: float = 0.01,
                  robust: float = 3.0, learn_conf: float = 0.5, gate: float = 2.5, clear_frames: int = 15,
                  correlation: float = 8.0, shape_rate: float = 0.1,
-                 interp_window: int = 60, interp_prior: int = 10,
+                 interp_window: int = 60, interp_prior: int = 10, seen_min: float = 0.3, seen_radius: float = 0.04,
+                 heading_votes: int = 15,
                  heading: dict | None = None, sensor: dict | None = None):
         self.cal = calibration
         self.template = default_template(calibration.rest_joints) if template is None else np.asarray(template, np.float64)
@@ -200,36 +213,47 @@ class Fuser:
         from live.imu.suit_skeleton import ChainPlan
 
         self.plan = ChainPlan.of(calibration.joints)
-        self.heading = HeadingFilter(**(heading or {}))
-        free = np.array([int(j) in LIMB_SEGMENTS for j in calibration.joints])
-        self.sensors = SensorFilter(self.S, mount_free=free, **(sensor or {}))
-        self.shape = RestShape(self.template)
+        self._filter_options = (dict(heading or {}), dict(sensor or {}))
+        self.heading_votes = heading_votes
+        self._heading_votes: list[float] = []
+        self.interp_std, self.length_std, self.interp_prior = interp_std, length_std, interp_prior
+        self._start_learning()
         self.unsupported, self.interp_std, self.imu_std = unsupported, interp_std, imu_std
         self.length_std, self.robust, self.learn_conf = length_std, robust, learn_conf
         self.gate, self.clear_frames, self.correlation = gate, clear_frames, correlation
-        self._lost = np.zeros(NUM_JOINTS, bool)
         self.shape_rate, self.shape_start_s = shape_rate, 1.0
-        self._shape: np.ndarray | None = None  # last fused joints against the pelvis
-        self._shape_var = np.full(NUM_JOINTS, np.inf)
         self._rel_prev = np.zeros((NUM_JOINTS, 3))
         self.last_bones: tuple[np.ndarray, np.ndarray] | None = None  # suit bone vectors and weights
-        tpl_len = np.linalg.norm(rest_offsets(self.template)[_CHILD], axis=-1)
         self.interp_window = interp_window
-        self._interp_var = (interp_std * tpl_len) ** 2 + length_std ** 2
-        self._interp_n = np.full(len(BONES), float(interp_prior))
-        self._agree = np.zeros(NUM_JOINTS, np.int64)
         self.odometry = FootOdometry(self.template)
         self._root: np.ndarray | None = None
         self._odo_prev: np.ndarray | None = None
         self._last_t: int | None = None
         self.frames = 0
-        self.counters = {"depth_frames": 0, "suit_only_frames": 0, "outliers": 0, "lost_joint_frames": 0}
+        self.seen_min, self.seen_radius = seen_min, seen_radius
+        self.counters = {"depth_frames": 0, "suit_only_frames": 0, "outliers": 0, "lost_joint_frames": 0,
+                         "unseen_joint_frames": 0, "restarts": 0}
         # The bones the suit measures: (sensor row, its segment joint, the child joint, the bone's
         # index in BONES, the bone's number among its segment's).
         pairs = [(i, int(j), c, c - 1, n) for i, j in enumerate(calibration.joints)
                  for n, c in enumerate(CHILDREN[int(j)])]
         self._rows, self._joint, self._child, self._bone, self._slot = (
             np.array([p[k] for p in pairs], np.int64).reshape(-1) for k in range(5))
+
+    def _start_learning(self) -> None:
+        """Everything learnt from depth, as before the first frame: the filters, the performer's
+        shape, the lost limbs."""
+        self.heading = HeadingFilter(**self._filter_options[0])
+        free = np.array([int(j) in LIMB_SEGMENTS for j in self.cal.joints])
+        self.sensors = SensorFilter(self.S, mount_free=free, **self._filter_options[1])
+        self.shape = RestShape(self.template)
+        tpl_len = np.linalg.norm(rest_offsets(self.template)[_CHILD], axis=-1)
+        self._interp_var = (self.interp_std * tpl_len) ** 2 + self.length_std ** 2
+        self._interp_n = np.full(len(BONES), float(self.interp_prior))
+        self._lost = np.zeros(NUM_JOINTS, bool)
+        self._agree = np.zeros(NUM_JOINTS, np.int64)
+        self._shape: np.ndarray | None = None  # last fused joints against the pelvis
+        self._shape_var = np.full(NUM_JOINTS, np.inf)
 
     # -- pieces ---------------------------------------------------------------------------------
     def rest_joints(self) -> np.ndarray:
@@ -250,6 +274,19 @@ class Fuser:
         angle, evidence = yaw_between(pred, obs, 1.0 / (var[self._child] + var[self._joint]))
         if evidence < 1e-3:
             return
+        if len(self._heading_votes) < self.heading_votes:
+            # The first measurements vote on the start: the heading starts from the first one, and
+            # starts again, with all learnt so far forgotten, if the others outvote it (a first
+            # depth skeleton mirrored left-right would otherwise lock the heading half a turn off,
+            # with torso offsets learnt to match).
+            self._heading_votes.append(float(wrap_angle(self.heading.yaw + angle)))
+            start = majority_angle(self._heading_votes, np.radians(20.0))
+            if self.heading.variance is not None and abs(float(wrap_angle(start - self.heading.yaw))) > np.radians(20.0):
+                self._start_learning()
+                self.counters["restarts"] += 1
+            if self.heading.variance is None:
+                self.heading.update(float(wrap_angle(start - self.heading.yaw)), 1.0 / evidence)
+                return
         self.heading.update(angle, 1.0 / evidence)
 
     def _sensor_updates(self, seg: np.ndarray, offs: np.ndarray, x: np.ndarray, var: np.ndarray) -> None:
@@ -289,16 +326,33 @@ class Fuser:
         self._interp_var = np.where(ok, self._interp_var + gain * (np.where(ok, sample, 0.0) - self._interp_var),
                                     self._interp_var)
 
+    def _unseen_limbs(self, x: np.ndarray, vec: np.ndarray, image: DepthFrame, camera_to_world: np.ndarray
+                      ) -> np.ndarray:
+        """(22,) limb joints whose bone the depth image does not show where the suit puts it: the
+        limb drawn from the depth's hip or shoulder along the suit's bones, each bone's share of
+        points with depth within ``seen_radius`` below ``seen_min`` (live.imu.fusion_visibility)."""
+        pos = x.copy()
+        for b in _LIMB_BONES:  # BONES order: a parent is placed before its children
+            pos[_CHILD[b]] = pos[_PARENT[b]] + vec[b]
+        seen = seen_fraction(image, camera_to_world, pos[_PARENT[_LIMB_BONES]], pos[_CHILD[_LIMB_BONES]],
+                             radius=self.seen_radius)
+        out = np.zeros(NUM_JOINTS, bool)
+        out[_CHILD[_LIMB_BONES]] = seen < self.seen_min
+        self.counters["unseen_joint_frames"] += int(out.sum())
+        return out
+
     # -- one frame ------------------------------------------------------------------------------
-    def _lost_limbs(self, x: np.ndarray, var: np.ndarray, vec: np.ndarray, bone_w: np.ndarray) -> np.ndarray:
+    def _lost_limbs(self, x: np.ndarray, var: np.ndarray, vec: np.ndarray, bone_w: np.ndarray,
+                    unseen: np.ndarray) -> np.ndarray:
         """(22,) depth joints of limbs the depth lost: the bone leading to the joint is farther
         from the suit's than both their variances explain (``gate`` standard deviations, three
         degrees of freedom), or the joint hangs below such a one. A joint stays lost until its
-        bone has been within the gate for ``clear_frames`` frames in a row."""
+        bone has been within the gate, and seen in the depth image, for ``clear_frames`` frames
+        in a row."""
         for b, (p, c) in enumerate(BONES):
             if c not in LIMB_SEGMENTS:
                 continue
-            if bone_w[b] <= 0 or not (np.isfinite(var[p]) and np.isfinite(var[c])):
+            if bone_w[b] <= 0 or unseen[c] or not (np.isfinite(var[p]) and np.isfinite(var[c])):
                 self._agree[c] = 0
                 continue
             r = (x[c] - x[p]) - vec[b]
@@ -315,10 +369,13 @@ class Fuser:
         self.counters["lost_joint_frames"] += int(self._lost.sum())
         return self._lost.copy()
 
-    def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None) -> tuple[SuitPose, np.ndarray] | None:
+    def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None, image: DepthFrame | None = None,
+               camera_to_world: np.ndarray | None = None) -> tuple[SuitPose, np.ndarray] | None:
         """quats (S, 4) at t_ns -> (fused pose, confidence (22,)). depth None: the suit alone,
         with what the filters learnt so far (None before any depth frame: nothing says where
-        the performer is yet)."""
+        the performer is yet). image: the depth frame the skeleton was estimated from, and
+        camera_to_world the one its joints were solved in: limb joints the image does not show
+        where the suit puts them count as unsupported by depth and teach the filters nothing."""
         dt = frame_interval_s(30) if self._last_t is None else max(seconds_between(self._last_t, t_ns), 1e-4)
         self._last_t = t_ns
         self.heading.predict(dt)
@@ -337,10 +394,14 @@ class Fuser:
         seg = self._segments(quats)
         glob = fill_globals(self.sensors.correct(seg), self.plan)
         vec, bone_w = self._bones(glob, seg, offs)
+        unseen = np.zeros(NUM_JOINTS, bool)
         if x is not None:
+            if image is not None and camera_to_world is not None and self.heading.variance is not None:
+                unseen = self._unseen_limbs(x, vec, image, camera_to_world)
+                var = np.where(unseen, np.inf, var)
             # Tested as if supported: a guess the depth does not support must agree with the suit.
             base = np.where(np.isfinite(var), DEPTH_STD ** 2, np.inf)
-            var = np.where(self._lost_limbs(x, base, vec, bone_w), np.inf, var)
+            var = np.where(self._lost_limbs(x, base, vec, bone_w, unseen), np.inf, var)
             self._heading_update(seg, offs, x, var)
             seg = self._segments(quats)
             glob = fill_globals(self.sensors.correct(seg), self.plan)
@@ -374,10 +435,11 @@ class Fuser:
             seen = depth_w * keep
             info = np.where(seen > 0, 1.0 / (1.0 / np.maximum(seen, 1e-30) + 1.0 / max(seen[0], 1e-30)), 0.0)
             self._shape_var = 1.0 / (1.0 / self._shape_var + info)
-            learn_var = np.where(keep >= self.learn_conf, var, np.inf)
-            self._learn_interp_var(x, learn_var, vec)
-            self._sensor_updates(seg, offs, x, learn_var)
-            self.shape.add(x, glob, np.minimum(0.025 ** 2 / learn_var, 1.0))
+            learn_var = np.where((keep >= self.learn_conf) & ~unseen, var, np.inf)
+            if self.heading.variance is not None:  # the suit's bones mean nothing before its heading
+                self._learn_interp_var(x, learn_var, vec)
+                self._sensor_updates(seg, offs, x, learn_var)
+                self.shape.add(x, glob, np.minimum(0.025 ** 2 / learn_var, 1.0))
             self.counters["depth_frames"] += 1
         self._root = joints[0].copy()
         if self._shape is None and x is not None:

@@ -9,7 +9,8 @@ segment's frame). The depth skeleton sees each bone's direction with white-ish n
 - ``HeadingFilter``: one scalar Kalman filter on the yaw shared by all sensors (the calibration
   frame's heading in the world, plus the drift they share), measured every frame as the yaw that
   best turns the suit's bones onto the depth bones (``live.core.heading.yaw_between``), with a
-  variance from how much horizontal bone the depth skeleton showed.
+  variance from how much horizontal bone the depth skeleton showed. It starts from the first
+  measurement, and again from the majority if the next few outvote it (``majority_angle``).
 - ``SensorFilter``: one error-state Kalman filter per sensor on (phi, delta): phi (3,) a rotation
   in the segment frame (mounting error) and delta a yaw in the world (this sensor's own drift).
   Each frame its segment's child bones as the depth skeleton sees them are the measurement; a
@@ -71,6 +72,16 @@ class HeadingFilter:
         k = self.variance / s
         self.yaw = float(wrap_angle(self.yaw + k * innovation))
         self.variance = (1.0 - k) * self.variance
+
+
+def majority_angle(votes: list[float], tolerance: float) -> float:
+    """The circular mean of the largest group of angles (radians) within ``tolerance`` of one of
+    them (ties: the earliest one's group): what most of a filter's first measurements say, so that
+    one odd frame (a depth skeleton mirrored left-right while the regressor settles) is outvoted."""
+    a = np.asarray(votes, np.float64)
+    close = np.abs(wrap_angle(a[:, None] - a[None, :])) <= tolerance
+    group = a[close[int(np.argmax(close.sum(axis=1)))]]
+    return float(np.arctan2(np.sin(group).mean(), np.cos(group).mean()))
 
 
 class SensorFilter:
@@ -170,4 +181,4 @@ def rotate_offsets(rot: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return quat_rotate(np.broadcast_to(rot, offsets.shape[:-1] + (4,)), offsets)
 
 
-__all__ = ["HeadingFilter", "SensorFilter", "skew", "rotate_offsets"]
+__all__ = ["HeadingFilter", "SensorFilter", "majority_angle", "skew", "rotate_offsets"]

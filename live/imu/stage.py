@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from live.core.frames import FrameResult, MocapPacket, SkeletonFrame
+from live.core.frames import DepthFrame, FrameResult, MocapPacket, SkeletonFrame
 from live.core.rotations import quat_slerp
 from live.core.skeleton import default_rest_joints
 from live.imu.calibration import Calibration, CalibrationCollector, calibrate
@@ -208,7 +208,8 @@ class FusionStage(_SuitStageBase):
         quats = self.buffer.at(result.t_ns)
         if quats is None:
             return False
-        fused = self.fuser.update(quats, result.t_ns, result.skeleton)
+        image, c2w = depth_image_of(result)
+        fused = self.fuser.update(quats, result.t_ns, result.skeleton, image, c2w)
         if fused is None:
             return False
         pose, conf = fused
@@ -217,6 +218,19 @@ class FusionStage(_SuitStageBase):
                                         confidence=conf.astype(np.float32))
         self.counters["skeletons"] += 1
         return True
+
+
+def depth_image_of(result: FrameResult) -> tuple[DepthFrame | None, np.ndarray | None]:
+    """The depth image the frame's skeleton was estimated from, and the camera_to_world its joints
+    were solved in; (None, None) when there is no image or the skeleton belongs to another frame
+    (a lagging temporal model's)."""
+    depth, skeleton = result.depth, result.skeleton
+    if depth is None or skeleton is None or depth.depth_mm is None or depth.intrinsics is None:
+        return None, None
+    if skeleton.t_ns != depth.t_ns:
+        return None, None
+    c2w = skeleton.camera_to_world if skeleton.camera_to_world is not None else depth.camera_to_world
+    return depth, np.asarray(c2w, np.float64)
 
 
 def is_suit_stream(stream) -> bool:
