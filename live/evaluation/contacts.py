@@ -157,7 +157,8 @@ def run_retargeter(rt, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
 
 def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton", retarget: str = "analytic", *,
                       fps: float = 30.0, max_frames: int | None = None, camera: str = "oak-d", seed: int = 0,
-                      lag: int = 0, settings=None, progress=None, skeletons=None) -> dict[str, Any]:
+                      lag: int = 0, settings=None, progress=None, skeletons=None, per_frame: bool = False
+                      ) -> dict[str, Any]:
     """The correction on and off for one motion from a source body to a target body.
 
     motion: a Motion or a BVH path (prepared as ``livecap eval retarget`` does); bodies: Body or
@@ -165,7 +166,9 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     ``hand_contact_precision``, ``penetration_mean_mm``, ``penetration_max_mm``, ``mpjpe_mm``,
     and more), the same without the correction under ``"off"``, the performer's own penetration
     under ``"source"``, and the run's names and settings. skeletons: what the retargeter sees, as
-    ``source_skeletons`` returns it for this motion and source (reused across avatars)."""
+    ``source_skeletons`` returns it for this motion and source (reused across avatars). per_frame:
+    also the frame-by-frame arrays under ``"per_frame"`` (gaps, depths, joints; not JSON), to
+    find which frames and which arm a figure comes from."""
     from live.body.library import load_body
     from live.body.skinning import lbs
     from live.evaluation.retarget import _on_body, check_options, make_retargeter, prepare_motion, source_skeletons
@@ -201,12 +204,14 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     src_verts = lbs(src.vertices, src.weights, src.rest_joints, src_pose, src_root)
     src_gaps, src_depth = contact_geometry(src_regions, np.asarray(src.faces, np.int64), src_verts, progress)
     out: dict[str, Any] = {}
+    frames: dict[str, Any] = {"source_gaps": src_gaps, "source_depth": src_depth, "gt_joints": gt_joints}
     for name, (root, rot, pred) in runs.items():
         verts = lbs(tgt.vertices, tgt.weights, tgt.rest_joints, rot, root)
         gaps, depth = contact_geometry(tgt_regions, np.asarray(tgt.faces, np.int64), verts, progress)
         scores = contact_scores(src_gaps, gaps, depth)
         scores.update(joint_scores(pred, gt_joints))
         out[name] = scores
+        frames[name] = {"gaps": gaps, "depth": depth, "joints": pred}
     result = dict(out["on"])
     result.update(off=out["off"], source={"penetration_mean_mm": contact_scores(src_gaps, src_gaps, src_depth)
                                           ["penetration_mean_mm"], "penetration_max_mm": float(1000 * src_depth.max())},
@@ -214,6 +219,8 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
                   source_body=getattr(src, "name", "source"), target_body=getattr(tgt, "name", "target"),
                   retarget=retarget, found=float(found.mean()), lag=lag, **{"from": from_},
                   corrected_frames=int(keeper.counters["frames_corrected"]))
+    if per_frame:
+        result["per_frame"] = frames
     return result
 
 

@@ -1,26 +1,35 @@
 """Self-contacts kept on the avatar and hands and forearms kept out of its body, one frame at a time.
 
 After any retargeter (rotation copy or the network), on the avatar's own surface
-(live/retarget/contacts_surface.py), for both arms at once:
+(live/retarget/contacts_surface.py), both arms solved together:
 
-1. **Goals.** Every region near a hand (the other hand and arm, head, torso, legs) gets a gap
-   goal: where the performer is in contact with it (weight w from live/retarget/contacts_self.py),
-   the performer's gap, at least ``margin``; elsewhere only a floor, min(the performer's gap,
-   ``clearance``) and at least ``margin`` (no sinking in, no touching where the performer does
-   not; a hand in contact somewhere keeps only the margin from the rest). Forearms keep the
-   margin. The residual w (goal - gap) + (1 - w) max(0, floor - gap) acts along the region's
-   outward direction; between the two arms each closes half of it.
-2. **Steps.** Damped Gauss-Newton per arm on the hand's translation (the hand keeps its
-   orientation: a contact lands where the rotation copy put the hand in the part's frame, moved
-   onto the avatar's skin at the performer's gap) and the elbow's swivel about the
-   shoulder-wrist line (moves the forearm, leaves the hand); a forearm point moves with a
-   fraction of the hand's translation. The wrist reaches its place by two-bone IK (the hand's
-   world orientation kept); out of reach, the collar turns toward it (at most ``collar_deg``).
-3. **In time.** Each frame starts from the last frame's correction, let go with ``release_s``
-   (also the prior the steps are damped toward); at most _ITERATIONS steps, a step turning back
-   on the last one halved; the correction's change is rate-limited. It follows the motion
-   continuously and, with nothing left to keep, fades out. A frame with nothing near is left
-   exactly as the retargeter made it.
+1. **Bounds.** Every region near a hand or forearm (the other hand and arm, head, torso, legs)
+   bounds its gap: where the performer is in contact with it (weight w from
+   live/retarget/contacts_self.py), the performer's gap, at least ``margin``, from both sides;
+   elsewhere only from below, min(the performer's gap, ``clearance``) and at least ``margin`` (no
+   sinking in, no touching where the performer does not; a hand in contact somewhere keeps only
+   the margin from the rest). Forearms keep the margin. A row's residual (along the region's
+   outward direction) is how far its gap is outside its bounds.
+2. **Unknowns.** Per arm, a rotation of the whole arm about the shoulder (3) and the elbow's
+   flexion about its hinge (1); the hand keeps its world orientation and moves with the wrist,
+   so a contact lands where the rotation copy put the hand in the touched part's frame, moved
+   onto the avatar's skin at the performer's gap. The two arms are one system: a row between a
+   hand and the other hand or arm moves with both arms (a hand pushed out of a belly takes the
+   forearm it holds along, rather than each arm closing half the gap and the pair coming apart).
+3. **Least displacement.** Damped Gauss-Newton on the residuals (pushing out weighs
+   PUSH_WEIGHT times pulling in) plus a small cost on how far the elbows and wrists move from
+   the retargeter's pose (the joint error a viewer and MPJPE see), so the arm moves only as far
+   as the bounds need, by the joints that move least. A row just above its lower bound is a
+   wall the step may not cross (added to the step's system only when it would). The elbow's
+   flexion stays between the input's and anatomical limits (never past straight).
+4. **In time.** Each frame starts where the last one ended; the prior the steps are damped
+   toward is that correction let go with ``release_s``, which the arms follow out once nothing
+   holds them. Up to _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep
+   inside). The correction's change is rate-limited: its elbows and wrists move at most
+   MAX_HAND_SPEED plus INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while
+   the hand is still (a contact starting, a hand slipping between thigh and belly) are followed
+   smoothly, and a hand that strikes or claps fast is still pushed out. A frame with nothing
+   near is left exactly as the retargeter made it.
 """
 
 from __future__ import annotations
@@ -30,52 +39,101 @@ import math
 import numpy as np
 
 from live.core import vec3 as v3
-from live.core.skeleton import JOINT_INDEX, PARENTS
+from live.core.skeleton import PARENTS
 from live.retarget.analytic import LIMBS
 from live.retarget.contacts_self import ContactSettings, SourceContacts
-from live.retarget.contacts_surface import PROBES, REGIONS, BodySurface, Gaps, measure
-from live.retarget.ik import limb_ik
+from live.retarget.contacts_surface import BAND, PROBES, REGIONS, BodySurface, Gaps, measure
 
-#: Gauss-Newton steps per frame at most (each measures the gaps once).
+#: Gauss-Newton steps per frame at most (each measures the gaps once), and at most when a hand
+#: or forearm is still more than DEEP (m) inside the body (a strike, the first frame).
 _ITERATIONS = 2
-#: Weight of the prior (the last frame's correction, let go) against the residuals: on the hand
-#: translation (m^2 per m^2) and the swivel (m^2 per rad^2). Small: the goals win, the prior
-#: only steadies what they leave free and damps the steps.
-_PRIOR = np.diag([1e-3, 1e-3, 1e-3, 4e-3])
-#: Largest hand move (m) and elbow swivel (rad) in one frame, and in one step.
-MAX_HAND_MOVE = 0.25
-MAX_SWIVEL = math.radians(60.0)
-MAX_STEP = 0.05
-#: A step smaller than this (m, rad) ends the frame's iterations.
-SETTLED_STEP = 0.004
-SETTLED_SWIVEL = math.radians(1.0)
-MAX_SWIVEL_STEP = math.radians(15.0)
+_DEEP_ITERATIONS = 5
+DEEP = 0.004
+#: Weight of the elbows' and wrists' displacement from the retargeter's pose against the
+#: residuals (m^2 per m^2): small, so the goals win and the displacement only picks, of the
+#: poses that meet them, the one nearest the retargeter's.
+DISPLACEMENT_WEIGHT = 0.02
+#: Weight of the prior (the last frame's correction, let go) per unknown (per rad^2): with nothing
+#: to keep, the correction follows it out; and a step's largest rotation of arm and elbow (rad).
+_PRIOR = 0.005
+MAX_STEP = 0.25
+#: A step whose elbow and wrist move less than this (m) ends the frame's iterations.
+SETTLED_STEP = 0.003
+#: The elbow's flexion bounds (rad, 0 = straight): never past straight, at most this bent.
+MIN_BEND = 0.05
+MAX_BEND = 2.6
 #: Weight of a forearm's contacts against a hand's: none. Viewers notice them much less, and a
 #: forearm held to a hip fights the hand's own goals where bodies differ most; forearms are only
 #: kept out of the body.
 FOREARM_CONTACT_WEIGHT = 0.0
-#: How fast the correction may change: hand translation (m/s) and swivel (rad/s). A frame's goals
-#: can jump (a contact starts, a hand slips between thigh and belly); the arm follows smoothly.
+#: How fast the correction may move an elbow or a wrist: MAX_HAND_SPEED (m/s) plus INPUT_SHARE of
+#: the retargeter's own wrist speed. A goal that jumps while the hand is still is followed
+#: smoothly; a hand that strikes into the body is pushed out about as fast as it comes in (all
+#: of the wrist's speed: a third less penetration on fast takes, a quarter more acceleration).
 MAX_HAND_SPEED = 0.8
-MAX_SWIVEL_SPEED = math.radians(180.0)
+INPUT_SHARE = 0.5
+#: The most gap (m) of a row with no contact: none.
+FAR_GOAL = 1e3
+#: How far (m) a probe set holding a contact looks for what it holds.
+HOLD_REACH = 0.15
+#: Rows within this (m) above their least gap are walls the step may not cross.
+NEAR = 0.01
+#: Weight of the rows that push out of the body against those that pull toward a contact.
+PUSH_WEIGHT = 3.0
 
 
 class _Arm:
     """The joints and probe sets of one arm."""
 
-    def __init__(self, side: str):
+    def __init__(self, side: str, index: int):
         limb = LIMBS[2] if side == "left" else LIMBS[3]
-        self.side = side
-        self.collar = JOINT_INDEX[f"{side}_collar"]
+        self.side, self.index = side, index
         self.shoulder, self.elbow, self.wrist = (int(j) for j in limb[:3])
         self.hinge_axis = tuple(float(x) for x in limb[3])
         self.hand = next(i for i, p in enumerate(PROBES) if p.name == f"{side}_hand")
         self.forearm = next(i for i, p in enumerate(PROBES) if p.name == f"{side}_forearm")
-        self.joints = [self.collar, self.shoulder, self.elbow, self.wrist]
+        self.joints = [self.shoulder, self.elbow, self.wrist]
+        self.hand_region = REGIONS.index(f"{side}_hand")
+        self.arm_region = REGIONS.index(f"{side}_arm")
 
 
-ARMS = (_Arm("left"), _Arm("right"))
+ARMS = (_Arm("left", 0), _Arm("right", 1))
 _ALL = np.arange(len(PROBES))
+#: Per probe set: its arm and whether it is a hand. Per region: the arm it belongs to (-1: none)
+#: and whether it is that arm's hand.
+_PROBE_ARM = np.array([0 if p.side == "left" else 1 for p in PROBES])
+_PROBE_HAND = np.array([p.kind == "hand" for p in PROBES])
+_REGION_ARM = np.array([0 if r.startswith("left_") and r[5:] in ("hand", "arm") else
+                        1 if r.startswith("right_") and r[6:] in ("hand", "arm") else -1 for r in REGIONS])
+_REGION_HAND = np.array([r.endswith("_hand") for r in REGIONS])
+
+
+class _Posed:
+    """One arm of one frame: the retargeter's pose (``base``) and a correction applied to it."""
+
+    def __init__(self, glob: np.ndarray, pos: np.ndarray, arm: _Arm):
+        self.arm = arm
+        self.collar = glob[PARENTS[arm.shoulder]].tolist()
+        self.g_upper, self.g_lower, self.g_hand = (glob[j].tolist() for j in arm.joints)
+        self.s, self.e0, self.w0 = (pos[j].tolist() for j in arm.joints)
+        ab, cb = v3.sub(self.e0, self.s), v3.sub(self.w0, self.e0)
+        hint = v3.mv(self.g_upper, arm.hinge_axis)
+        hint = v3.sub(hint, v3.scale(ab, v3.dot(hint, ab) / max(v3.dot(ab, ab), v3.EPS)))
+        # Turning the forearm about n0 by a positive angle straightens the elbow (as limb_ik's).
+        self.n0 = v3.scale(v3.unit(hint), -1.0)
+        self.bend0 = math.atan2(v3.dot(v3.cross(cb, ab), self.n0), v3.dot(ab, cb))
+        self.fore0 = cb
+        self.upper0 = ab
+
+    def pose(self, x: np.ndarray) -> tuple:
+        """(upper arm rotation R, flexion rotation F, elbow, wrist, flex axis) of state x (4,):
+        x[:3] the whole arm's rotation vector (world), x[3] the elbow's straightening (rad)."""
+        angle = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+        r = v3.axis_angle((x[0] / angle, x[1] / angle, x[2] / angle), angle) if angle > 1e-12 else v3.IDENTITY
+        n = v3.mv(r, self.n0)
+        f = v3.mm(v3.axis_angle(n, float(x[3])), r) if x[3] != 0.0 else r
+        elbow = v3.add(self.s, v3.mv(r, self.upper0))
+        return r, f, elbow, v3.add(elbow, v3.mv(f, self.fore0)), n
 
 
 class ContactKeeper:
@@ -85,33 +143,24 @@ class ContactKeeper:
     one frame's global and local rotations and joints in place and returns the joints it
     rotated (a set, empty when nothing was near)."""
 
-    def __init__(self, offsets: np.ndarray, settings: ContactSettings = ContactSettings(),
-                 collar_deg: float = 15.0):
+    def __init__(self, offsets: np.ndarray, settings: ContactSettings = ContactSettings()):
         self.offsets = np.asarray(offsets, np.float64)
-        for arm in ARMS:
-            arm.offsets = (self.offsets[arm.elbow].tolist(), self.offsets[arm.wrist].tolist())
         self.settings = settings
-        self.max_collar = math.radians(collar_deg)
         self.release_s = settings.blend_s
         self.reset()
         s = settings
-        hands = np.array([p.kind == "hand" for p in PROBES])
         # Per probe set: how far to look, the most a floor asks, the weight of its contacts.
-        self._reach = np.where(hands, max(s.reach, s.clearance), s.reach) + s.margin
-        self._floor_cap = np.where(hands, max(s.clearance, s.margin), s.margin)
-        self._contact_weight = np.where(hands, 1.0, FOREARM_CONTACT_WEIGHT)
-        # Rows between the two arms: each arm closes half of the gap.
-        self._shared = np.zeros((len(PROBES), len(REGIONS)), bool)
-        for i, p in enumerate(PROBES):
-            other = "right" if p.side == "left" else "left"
-            self._shared[i, [REGIONS.index(f"{other}_hand"), REGIONS.index(f"{other}_arm")]] = True
+        self._reach = np.where(_PROBE_HAND, max(s.reach, s.clearance), s.reach) + s.margin
+        self._floor_cap = np.where(_PROBE_HAND, max(s.clearance, s.margin), s.margin)
+        self._contact_weight = np.where(_PROBE_HAND, 1.0, FOREARM_CONTACT_WEIGHT)
 
-    def residuals(self, gaps: Gaps, source: SourceContacts) -> np.ndarray:
-        """Each row's residual (m, along its direction): the performer's gap where in contact
-        (weighted), elsewhere the floor (not closer than min(performer's gap, clearance), never
-        within margin); halved between the arms. A hand in contact somewhere only keeps the
-        margin from the rest: between a heavy avatar's thigh and belly there may be no room for
-        more."""
+    def bounds(self, gaps: Gaps, source: SourceContacts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per row: the least gap (m) it may have, the most (inf but for a kept contact) and the
+        weight of its contact. Where the performer is in contact: its gap, at least the margin
+        (least and most). Elsewhere a floor: not closer than
+        min(performer's gap, clearance), never within margin; a hand in contact somewhere only
+        keeps the margin from the rest (between a heavy avatar's thigh and belly there may be no
+        room for more). The two blend by the contact's weight."""
         s = self.settings
         src_gap = source.gap[gaps.probe, gaps.region]
         w = source.weight[gaps.probe, gaps.region] * self._contact_weight[gaps.probe]
@@ -119,80 +168,86 @@ class ContactKeeper:
         cap = self._floor_cap[gaps.probe] * (1.0 - busy) + s.margin * busy
         goal = np.maximum(src_gap, s.margin)
         floor = np.clip(src_gap, s.margin, np.maximum(cap, s.margin))
-        residual = w * (goal - gaps.gap) + (1.0 - w) * np.maximum(floor - gaps.gap, 0.0)
-        return np.where(self._shared[gaps.probe, gaps.region], 0.5 * residual, residual)
+        return w * goal + (1.0 - w) * floor, np.where(w > 0.0, goal, FAR_GOAL), w
+
+    def residuals(self, gaps: Gaps, source: SourceContacts) -> np.ndarray:
+        """Each row's residual (m, along its direction, positive: out): up to its least gap, or
+        back (by the contact's weight) to its most."""
+        lower, upper, w = self.bounds(gaps, source)
+        return np.where(gaps.gap < lower, lower - gaps.gap, np.where(gaps.gap > upper, w * (upper - gaps.gap), 0.0))
 
     def reset(self) -> None:
         """Forget the correction carried from frame to frame."""
-        # Per arm: the hand's translation in the pelvis frame (m) and the elbow's swivel (rad).
+        # Per arm: the arm's rotation vector in the pelvis frame (3) and the elbow's straightening.
         self.state = np.zeros((2, 4))
         self._seen = False
+        self._wrists = np.zeros((2, 3))
 
     def __call__(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
                  source: SourceContacts, dt: float) -> set[int]:
-        """Both arms at once, from the last frame's correction let go by ``release_s`` (the prior):
-        damped Gauss-Newton on each hand's translation (3) and elbow swivel (1) against its hand's
-        and forearm's residuals and the prior, all gaps measured in one batch per step. Starting
-        from the last frame's solution, the correction follows the motion continuously; with
-        nothing left to keep it decays to none."""
-        joints = ARMS[0].joints + ARMS[1].joints
+        """Both arms at once, from the last frame's correction let go by ``release_s``."""
         pelvis = glob[0].copy()
         first, self._seen = not self._seen, True
         decay = math.exp(-max(dt, 0.0) / self.release_s)
         prior = self.state * decay
         prior[:, :3] = prior[:, :3] @ pelvis.T  # to world axes
+        # The retargeter's wrists in the pelvis frame: how fast they move bounds the correction's change.
+        wrists = pos[[ARMS[0].wrist, ARMS[1].wrist]] @ pelvis
+        moved = np.full(2, np.inf) if first else np.sqrt(((wrists - self._wrists) ** 2).sum(1))
+        self._wrists = wrists
+        # A probe set holding a contact looks far: a hand pushed away from what it holds still
+        # sees it and is pulled back (unmeasured, the contact would simply be let go).
+        holding = (source.weight * self._contact_weight[:, None]).max(1) > 0.0
+        reach = np.where(holding, HOLD_REACH, self._reach)
+        band = np.where(holding, HOLD_REACH, BAND)
+        gaps = None
         if not prior.any():
-            gaps = measure(surface, glob, pos, _ALL, self._reach, self.settings.tau)
+            gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
             if not np.any(np.abs(self.residuals(gaps, source)) > 1e-5):
                 self.state[:] = 0.0
                 return set()
-        saved = (glob[joints].copy(), loc[joints].copy(), pos[joints].copy())
-        wrist0 = [pos[arm.wrist].copy() for arm in ARMS]
+        arms = [_Posed(glob, pos, arm) for arm in ARMS]
         last = self.state.copy()
         last[:, :3] = last[:, :3] @ pelvis.T
-        # The first frame after a reset has no motion to follow: no limit.
-        limit = np.array([MAX_HAND_SPEED, MAX_SWIVEL_SPEED]) * (np.inf if first else max(dt, 1e-3))
-        state = self._limited(prior, last, limit)
+        # The correction changes by at most MAX_HAND_SPEED plus a share of the retargeter's own
+        # wrist speed (the first frame after a reset has no motion to follow: no limit).
+        limit = MAX_HAND_SPEED * max(dt, 1e-3) + INPUT_SHARE * moved
+        # Warm start from where the last frame ended (starting from the let-go prior instead, a
+        # hand held at a wall bounces: let in a little, pushed out again, every frame).
+        state = last.copy()
         if state.any():
-            self._apply(glob, loc, pos, saved, joints, wrist0, state)
-        previous = np.zeros((2, 4))
-        for _ in range(_ITERATIONS):
-            gaps = measure(surface, glob, pos, _ALL, self._reach, self.settings.tau)
-            res = self.residuals(gaps, source)
-            active = np.abs(res) > 1e-5
-            new = state.copy()
-            for a, arm in enumerate(ARMS):
-                mine = active & ((gaps.probe == arm.hand) | (gaps.probe == arm.forearm))
-                step = self._step(pos, arm, gaps, res, mine, state[a] - prior[a])
-                # A step turning back on the last one bounces between goals (out of the belly into
-                # the thigh and back): half of it lands between them.
-                if float(step[:3] @ previous[a, :3]) < 0.0:
-                    step *= 0.5
-                previous[a] = step
-                new[a] += step
-                move = float(np.sqrt(new[a, :3] @ new[a, :3]))
-                if move > MAX_HAND_MOVE:
-                    new[a, :3] *= MAX_HAND_MOVE / move
-                new[a, 3] = min(max(new[a, 3], -MAX_SWIVEL), MAX_SWIVEL)
-            # The rate limit, about the last frame's correction: the arm follows a jump smoothly.
-            limited = self._limited(new, last, limit)
-            step = np.abs(limited - state)
-            if step.max() < 1e-6:
+            self._apply(glob, loc, pos, arms, state)
+            gaps = None  # measured again where the arms now are
+        res, seen = np.zeros(0), Gaps.empty()
+        for iteration in range(_DEEP_ITERATIONS):
+            if gaps is None:
+                gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
+            lower, upper, w = self.bounds(gaps, source)
+            res = np.where(gaps.gap < lower, lower - gaps.gap, np.where(gaps.gap > upper, w * (upper - gaps.gap), 0.0))
+            seen = gaps
+            if not np.any(np.abs(res) > 1e-5) and not state.any():
                 break
+            new = state + self._step(arms, state, prior, gaps, res, lower)
+            for a, p in enumerate(arms):  # the elbow neither past straight nor folded further
+                lo, hi = p.bend0 - max(p.bend0, MAX_BEND), p.bend0 - min(p.bend0, MIN_BEND)
+                new[a, 3] = min(max(new[a, 3], lo), hi)
+            limited = self._limited(arms, new, last, limit)
+            step = self._moves(arms, limited - state)
+            held = self._moves(arms, new - limited) > 1e-6  # the rate limit held it back
             state = limited
-            self._apply(glob, loc, pos, saved, joints, wrist0, state)
-            # From the last frame's solution one step is usually enough; a large one is checked,
-            # unless the rate limit held it back (another step could not go further this frame).
-            held = np.abs(limited - new).max(1) > 1e-9
-            settled = (step[:, :3].max(1) < SETTLED_STEP) & (step[:, 3] < SETTLED_SWIVEL)
-            if np.all(held | settled):
+            self._apply(glob, loc, pos, arms, state)
+            # Another step when this one moved far and the rate limit did not hold it (one more
+            # could not go further this frame); past _ITERATIONS only while still deep inside.
+            if np.all(held | (step < SETTLED_STEP)) or \
+                    (iteration + 1 >= _ITERATIONS and not np.any(gaps.gap < -DEEP)):
                 break
+            gaps = None
         # A correction let go down to a tenth of a millimetre is gone (not followed forever).
-        gone = [a for a in range(2) if state[a].any() and np.abs(state[a, :3]).max() < 1e-4 and abs(state[a, 3]) < 1e-3
-                and not np.any(np.abs(res[(gaps.probe == ARMS[a].hand) | (gaps.probe == ARMS[a].forearm)]) > 1e-5)]
+        gone = [a for a in range(2) if state[a].any() and self._moves(arms, state)[a] < 1e-4
+                and not np.any((_PROBE_ARM[seen.probe] == a) & (np.abs(res) > 1e-5))]
         if gone:
             state[gone] = 0.0
-            self._apply(glob, loc, pos, saved, joints, wrist0, state)
+            self._apply(glob, loc, pos, arms, state)
         self.state = state.copy()
         self.state[:, :3] = state[:, :3] @ pelvis  # back to the pelvis frame
         changed: set[int] = set()
@@ -201,94 +256,145 @@ class ContactKeeper:
                 changed.update(arm.joints)
         return changed
 
+    # ------------------------------------------------------------------------------ the solve
+
     @staticmethod
-    def _limited(state: np.ndarray, last: np.ndarray, limit: np.ndarray) -> np.ndarray:
-        """``state`` moved back toward ``last`` until each arm's hand translation changed by at most
-        limit[0] and its swivel by at most limit[1]."""
-        out = state.copy()
-        for a in range(len(state)):
-            change = state[a, :3] - last[a, :3]
-            size = float(np.sqrt(change @ change))
-            if size > limit[0]:
-                out[a, :3] = last[a, :3] + change * (limit[0] / size)
-            out[a, 3] = min(max(state[a, 3], last[a, 3] - limit[1]), last[a, 3] + limit[1])
+    def _levers(arms: list[_Posed], posed: list[tuple], arm_of: np.ndarray, hand: np.ndarray,
+                points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For points (K, 3) on arms arm_of (K,) (hand: moving with the wrist; else on the arm:
+        forearm or upper arm, whichever segment is nearer): the levers about the shoulder and
+        about the elbow (zero for the upper arm) and the flex axes."""
+        s = np.array([arms[a].s for a in arm_of]).reshape(-1, 3)
+        e = np.array([posed[a][2] for a in arm_of]).reshape(-1, 3)
+        w = np.array([posed[a][3] for a in arm_of]).reshape(-1, 3)
+        n = np.array([posed[a][4] for a in arm_of]).reshape(-1, 3)
+        p = np.where(hand[:, None], w, points)
+        upper = _segment_distance(p, s, e) < _segment_distance(p, e, w)
+        about_elbow = np.where(upper[:, None] & ~hand[:, None], 0.0, p - e)
+        return p - s, about_elbow, n
+
+    def _step(self, arms: list[_Posed], state: np.ndarray, prior: np.ndarray, gaps: Gaps, res: np.ndarray,
+              lower: np.ndarray) -> np.ndarray:
+        """One damped Gauss-Newton step (2, 4) of both arms: the rows' residuals, the elbows' and
+        wrists' displacement from the retargeter's pose, the prior. A row near its least gap but
+        not below it is a wall: added (held at its least gap) only when the step would cross it,
+        so that the least displacement does not pull a hand back into what it was pushed out of."""
+        posed = [p.pose(state[a]) for a, p in enumerate(arms)]
+        rows = np.flatnonzero((res != 0.0) | (gaps.gap < lower + NEAR))
+        direction, point = gaps.direction[rows], gaps.point[rows]
+        jac = np.zeros((len(rows), 8))
+        probe = gaps.probe[rows]
+        own = _PROBE_ARM[probe]
+        lu, le, n = self._levers(arms, posed, own, _PROBE_HAND[probe], point)
+        _add_rows(jac, own, lu, le, n, direction, 1.0)
+        other = _REGION_ARM[gaps.region[rows]]
+        theirs = np.flatnonzero(other >= 0)
+        if len(theirs):
+            # The touched point of the other arm moves with it: the gap closes by both moves.
+            touched = point[theirs] - gaps.gap[rows][theirs, None] * direction[theirs]
+            lu, le, n = self._levers(arms, posed, other[theirs], _REGION_HAND[gaps.region[rows][theirs]], touched)
+            sub = np.zeros((len(theirs), 8))
+            _add_rows(sub, other[theirs], lu, le, n, direction[theirs], -1.0)
+            jac[theirs] += sub
+        # The elbows' and wrists' displacement from the retargeter's pose and its Jacobian.
+        disp, jd = np.zeros(12), np.zeros((12, 8))
+        for a, (p, (_, _, elbow, wrist, n_a)) in enumerate(zip(arms, posed)):
+            disp[6 * a:6 * a + 3] = v3.sub(elbow, p.e0)
+            disp[6 * a + 3:6 * a + 6] = v3.sub(wrist, p.w0)
+            jd[6 * a:6 * a + 3, 4 * a:4 * a + 3] = -_skew(v3.sub(elbow, p.s))
+            jd[6 * a + 3:6 * a + 6, 4 * a:4 * a + 3] = -_skew(v3.sub(wrist, p.s))
+            jd[6 * a + 3:6 * a + 6, 4 * a + 3] = v3.cross(n_a, v3.sub(wrist, elbow))
+        lam = DISPLACEMENT_WEIGHT
+        base_h = lam * (jd.T @ jd) + _PRIOR * np.eye(8)
+        base_g = -lam * (jd.T @ disp) - _PRIOR * (state - prior).ravel()
+        r = res[rows]
+        gap, wall = gaps.gap[rows], lower[rows]
+        use = r != 0.0
+        step = np.zeros(8)
+        for _ in range(3):
+            weight = np.where(r > 0.0, PUSH_WEIGHT, 1.0) * use
+            wjac = jac * weight[:, None]
+            step = np.linalg.solve(wjac.T @ jac + base_h, wjac.T @ r + base_g)
+            crossing = ~use & (gap + jac @ step < wall)
+            if not crossing.any():
+                break
+            use |= crossing
+            r = np.where(crossing, wall - gap, r)
+        step = step.reshape(2, 4)
+        size = np.sqrt((step[:, :3] ** 2).sum(1))
+        step[:, :3] *= np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-12))[:, None]
+        step[:, 3] = np.clip(step[:, 3], -MAX_STEP, MAX_STEP)
+        return step
+
+    @staticmethod
+    def _moves(arms: list[_Posed], change: np.ndarray) -> np.ndarray:
+        """(2,) how far a change of state (2, 4) moves each arm's elbow or wrist, at most (m, to
+        first order about the retargeter's pose)."""
+        out = np.zeros(2)
+        for a, (p, row) in enumerate(zip(arms, change.tolist())):
+            rot = row[:3]
+            elbow = v3.cross(rot, p.upper0)
+            wrist = v3.add(v3.add(elbow, v3.cross(rot, p.fore0)), v3.scale(v3.cross(p.n0, p.fore0), row[3]))
+            out[a] = math.sqrt(max(v3.dot(elbow, elbow), v3.dot(wrist, wrist)))
         return out
 
-    def _apply(self, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, saved: tuple, joints: list[int],
-               wrist0: list[np.ndarray], state: np.ndarray) -> None:
-        """The arms as the retargeter posed them, then each moved by its state."""
-        glob[joints], loc[joints], pos[joints] = saved
-        for a, arm in enumerate(ARMS):
-            if state[a].any():
-                self._pose(glob, loc, pos, arm, wrist0[a] + state[a, :3], state[a, 3])
-
-    @staticmethod
-    def _step(pos: np.ndarray, arm: _Arm, gaps: Gaps, res: np.ndarray, mine: np.ndarray, off_prior: np.ndarray
-              ) -> np.ndarray:
-        """One Gauss-Newton step (hand translation, swivel) of an arm from its rows and the prior
-        (off_prior: how far the arm's state is from it), the step bounded."""
-        direction, point, probe = gaps.direction[mine], gaps.point[mine], gaps.probe[mine]
-        jac = np.zeros((len(direction), 4))
-        jac[:, :3] = direction
-        fore = probe == arm.forearm
-        if fore.any():
-            # A forearm point a fraction t from elbow to wrist moves about t times the hand's
-            # move; the swivel turns it about the shoulder-wrist line.
-            elbow, wrist, shoulder = pos[arm.elbow], pos[arm.wrist], pos[arm.shoulder]
-            span = wrist - elbow
-            t = np.clip((point[fore] - elbow) @ span / max(float(span @ span), 1e-12), 0.0, 1.0)
-            axis = wrist - shoulder
-            axis /= max(float(np.sqrt(axis @ axis)), 1e-9)
-            jac[fore, :3] *= t[:, None]
-            jac[fore, 3] = np.einsum("ki,ki->k", direction[fore], np.cross(axis, point[fore] - shoulder))
-        step = np.linalg.solve(jac.T @ jac + _PRIOR, jac.T @ res[mine] - _PRIOR @ off_prior)
-        move = float(np.sqrt(step[:3] @ step[:3]))
-        if move > MAX_STEP:
-            step[:3] *= MAX_STEP / move
-        step[3] = min(max(step[3], -MAX_SWIVEL_STEP), MAX_SWIVEL_STEP)
-        return step
+    def _limited(self, arms: list[_Posed], state: np.ndarray, last: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """``state`` moved back toward ``last`` until no elbow or wrist of arm a moved by more
+        than ``limit[a]`` (m)."""
+        out = state.copy()
+        moves = self._moves(arms, state - last)
+        for a in range(2):
+            if moves[a] > limit[a]:
+                out[a] = last[a] + (state[a] - last[a]) * (limit[a] / moves[a])
+        return out
 
     # -------------------------------------------------------------------------------- posing
 
-    def _pose(self, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, arm: _Arm, target: np.ndarray,
-              swivel: float) -> None:
-        """The arm with its wrist at ``target`` (two-bone IK; short of it, the collar turns toward
-        it, in proportion to the miss, at most max_collar, and the IK runs again) and its elbow
-        turned by ``swivel`` about the shoulder-wrist line. The hand keeps its world orientation.
-        On plain floats (live/core/vec3.py), like the IK."""
-        hand = glob[arm.wrist].tolist()
-        g_collar, g_upper, g_lower = (glob[j].tolist() for j in (arm.collar, arm.shoulder, arm.elbow))
-        collar, shoulder, elbow, wrist = (pos[j].tolist() for j in (arm.collar, arm.shoulder, arm.elbow, arm.wrist))
-        goal = target.tolist()
-        off_elbow, off_wrist = arm.offsets
+    @staticmethod
+    def _apply(glob: np.ndarray, loc: np.ndarray, pos: np.ndarray, arms: list[_Posed], state: np.ndarray) -> None:
+        """The arms as the retargeter posed them, each turned by its state; the hand keeps its
+        world orientation."""
+        for a, p in enumerate(arms):
+            arm = p.arm
+            if not state[a].any():
+                glob[arm.shoulder], glob[arm.elbow] = p.g_upper, p.g_lower
+                pos[arm.elbow], pos[arm.wrist] = p.e0, p.w0
+                loc[arm.shoulder] = v3.mtm(p.collar, p.g_upper)
+                loc[arm.elbow] = v3.mtm(p.g_upper, p.g_lower)
+                loc[arm.wrist] = v3.mtm(p.g_lower, p.g_hand)
+                continue
+            r, f, elbow, wrist, _ = p.pose(state[a])
+            g_upper, g_lower = v3.mm(r, p.g_upper), v3.mm(f, p.g_lower)
+            glob[arm.shoulder], glob[arm.elbow] = g_upper, g_lower
+            pos[arm.elbow], pos[arm.wrist] = elbow, wrist
+            loc[arm.shoulder] = v3.mtm(p.collar, g_upper)
+            loc[arm.elbow] = v3.mtm(g_upper, g_lower)
+            loc[arm.wrist] = v3.mtm(g_lower, p.g_hand)
 
-        def reach(g_upper, g_lower, shoulder, elbow, wrist):
-            upper, lower = limb_ik(shoulder, elbow, wrist, goal, v3.mv(g_upper, arm.hinge_axis))
-            g_upper, g_lower = v3.mm(upper, g_upper), v3.mm(lower, g_lower)
-            elbow = v3.add(shoulder, v3.mv(g_upper, off_elbow))
-            return g_upper, g_lower, elbow, v3.add(elbow, v3.mv(g_lower, off_wrist))
 
-        g_upper, g_lower, elbow, wrist = reach(g_upper, g_lower, shoulder, elbow, wrist)
-        miss = v3.sub(goal, wrist)
-        bone = v3.sub(shoulder, collar)
-        length2 = v3.dot(bone, bone)
-        across = v3.sub(miss, v3.scale(bone, v3.dot(miss, bone) / max(length2, 1e-12)))
-        size = v3.norm(across)
-        turned = size > 1e-5 and length2 > 1e-12
-        if turned:
-            turn = v3.axis_angle(v3.unit(v3.cross(bone, across)), min(size / math.sqrt(length2), self.max_collar))
-            g_collar, g_upper, g_lower = v3.mm(turn, g_collar), v3.mm(turn, g_upper), v3.mm(turn, g_lower)
-            shoulder, elbow, wrist = (v3.add(collar, v3.mv(turn, v3.sub(p, collar))) for p in (shoulder, elbow, wrist))
-            g_upper, g_lower, elbow, wrist = reach(g_upper, g_lower, shoulder, elbow, wrist)
-        if swivel != 0.0:
-            turn = v3.axis_angle(v3.unit(v3.sub(wrist, shoulder)), swivel)
-            g_upper, g_lower = v3.mm(turn, g_upper), v3.mm(turn, g_lower)
-            elbow = v3.add(shoulder, v3.mv(turn, v3.sub(elbow, shoulder)))
-        if turned:
-            glob[arm.collar] = g_collar
-            loc[arm.collar] = v3.mtm(glob[PARENTS[arm.collar]].tolist(), g_collar)
-        glob[arm.shoulder], glob[arm.elbow] = g_upper, g_lower
-        pos[arm.shoulder], pos[arm.elbow], pos[arm.wrist] = shoulder, elbow, wrist
-        loc[arm.shoulder] = v3.mtm(g_collar, g_upper)
-        loc[arm.elbow] = v3.mtm(g_upper, g_lower)
-        loc[arm.wrist] = v3.mtm(g_lower, hand)
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of (K, 3) arrays (np.cross costs ten times more on a few rows)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def _skew(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K,) distances of points p (K, 3) to segments a-b (K, 3 each)."""
+    ab = b - a
+    t = np.clip(np.einsum("ki,ki->k", p - a, ab) / np.maximum(np.einsum("ki,ki->k", ab, ab), 1e-12), 0.0, 1.0)
+    d = p - a - t[:, None] * ab
+    return np.sqrt(np.einsum("ki,ki->k", d, d))
+
+
+def _add_rows(jac: np.ndarray, arm_of: np.ndarray, about_shoulder: np.ndarray, about_elbow: np.ndarray,
+              axis: np.ndarray, direction: np.ndarray, sign: float) -> None:
+    """Add to rows of jac (K, 8) how the gaps along direction (K, 3) grow with each arm's
+    unknowns for points moved about the shoulder (levers (K, 3)) and the elbow (levers, axes)."""
+    k = np.arange(len(arm_of))
+    # n . (w x r) = w . (r x n); for the flexion w = theta * axis.
+    jac[k[:, None], 4 * arm_of[:, None] + np.arange(3)[None]] += sign * _cross(about_shoulder, direction)
+    jac[k, 4 * arm_of + 3] += sign * np.einsum("ki,ki->k", axis, _cross(about_elbow, direction))

@@ -2,7 +2,7 @@
 forearm-torso, from the performer's body surface (live/retarget/contacts_surface.py).
 
 For every probe set (a hand, a forearm) and every region it may touch (torso, head, each leg,
-the other hand), the gap is the softmin distance of the set's probes to the region's skin
+the other hand), the gap is the least distance of the set's probes to the region's skin
 (negative when they sink in). A pair is in
 contact from when its gap falls below ``on`` (1 cm) until it rises above ``off`` (2 cm): the
 hysteresis keeps a hand resting on a hip in contact through the jitter of a depth skeleton. A
@@ -25,7 +25,7 @@ FAR_GAP = 1.0
 @dataclass(frozen=True)
 class ContactSettings:
     """on / off: gaps (m) that start and end a contact; blend_s: the weight's ramp (s); tau: the
-    softmin's length (m); reach: parts whose bounding sphere is within this (m) of a probe set's
+    length (m) of the softmin that weighs a gap's direction and point; reach: parts whose bounding sphere is within this (m) of a probe set's
     are measured; margin: how far out of the avatar's skin hands and forearms are kept (m);
     clearance: a hand the performer does not rest on a part is kept at least min(the
     performer's gap, clearance) from it on the avatar (m), so that it does not touch where the

@@ -17,8 +17,8 @@ angle-weighted vertex normals interpolated there on an edge or a vertex; negativ
 the closest point lies on the part's open edge (the cut to a neighbouring part) the distance
 counts as outside: that side is the neighbour's, which covers it.
 
-``PROBE_COUNT`` probe points are spread over each hand and forearm by farthest-point sampling;
-they are posed by skinning, like the mesh.
+``PROBE_COUNT`` probe points are spread over the convex hull of each hand and forearm by
+farthest-point sampling; they are posed by skinning, like the mesh.
 
 A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
 parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
@@ -51,9 +51,12 @@ FAR = 0.1
 #: Weight of a part's joints from which a vertex is in the part.
 PART_WEIGHT = 0.25
 #: Probes per hand and per forearm (the same count: probe sets are measured as one array).
-PROBE_COUNT = 32
+PROBE_COUNT = 48
+#: How far skinning may move a probe from where its joint alone carries it (m): the first,
+#: rigid broad phase allows for it.
+SKIN_SLACK = 0.08
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
-MODEL_VERSION = 5
+MODEL_VERSION = 6
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,14 @@ class SurfaceModel:
         bottom = self.lo + GRID_MARGIN
         object.__setattr__(self, "box_centre", 0.5 * (top + bottom))
         object.__setattr__(self, "box_half", 0.5 * (top - bottom))
+        # Each probe set's bounding sphere in its joint's frame: the broad phase's first, cheap
+        # test (no skinning) of whether anything is near at all.
+        joints = np.array([JOINT_INDEX[p.joint] for p in PROBES], np.int64)
+        rel = [self.vertices[v] - self.rest_joints[j] for v, j in zip(self.probes, joints)]
+        mid = np.array([0.5 * (r.min(0) + r.max(0)) for r in rel])
+        object.__setattr__(self, "probe_joint", joints)
+        object.__setattr__(self, "probe_centre", mid)
+        object.__setattr__(self, "probe_radius", np.array([np.sqrt(((r - c) ** 2).sum(1)).max() for r, c in zip(rel, mid)]))
 
     def sample(self, parts: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Signed distance and gradient (Q, 4) (gradient not unit) of parts[q] at local[q] (Q, 3),
@@ -408,6 +419,27 @@ def _part_grid(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, ori
     return lo - origin, dims, data, nearest.astype(np.int32)
 
 
+def _probe_vertices(vertices: np.ndarray, members: np.ndarray) -> np.ndarray:
+    """PROBE_COUNT of a hand's or forearm's vertices: its convex hull's first (what sinks deepest
+    into a surface is on the hull: sampled evenly over the whole skin, 32 probes missed a hand's
+    deepest point by 7 mm on average), spread by farthest-point sampling; then, when the hull has
+    too few, the other vertices, farthest from the hull's first."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = vertices[members]
+    try:
+        hull = np.unique(ConvexHull(pts).vertices)
+    except (QhullError, ValueError):
+        hull = np.arange(len(pts))
+    chosen = list(hull[_farthest_points(pts[hull], min(PROBE_COUNT, len(hull)))])
+    rest = np.setdiff1d(np.arange(len(pts)), chosen)
+    while len(chosen) < PROBE_COUNT and len(rest):
+        d = np.min(((pts[rest][:, None] - pts[chosen][None]) ** 2).sum(-1), axis=1)
+        chosen.append(int(rest[np.argmax(d)]))
+        rest = np.setdiff1d(rest, chosen)
+    return np.resize(members[np.asarray(chosen, np.int64)], PROBE_COUNT)  # a coarse mesh repeats some
+
+
 def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
     """Grids and probes of a body (vertices, faces, weights, rest_joints as live.body.Body)."""
     vertices = np.asarray(body.vertices, np.float64)
@@ -449,8 +481,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         members = np.flatnonzero(dominant == JOINT_INDEX[spec.joint])
         if len(members) < 4:
             raise UserInputError(f"the avatar mesh has no skin weighted to its {spec.joint}")
-        chosen = members[_farthest_points(vertices[members], PROBE_COUNT)]
-        probes.append(np.resize(chosen, PROBE_COUNT))  # a coarse mesh repeats some
+        probes.append(_probe_vertices(vertices, members))
     # Each vertex's four heaviest joints, renormalised: skinning a few vertices per frame.
     heavy = np.argsort(-weights, axis=1, kind="stable")[:, :4]
     heavy_w = np.take_along_axis(weights, heavy, axis=1)
@@ -566,22 +597,34 @@ class Gaps:
 
 
 def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.ndarray, reach: np.ndarray | float,
-            tau: float) -> Gaps:
+            tau: float, band: np.ndarray | float = BAND) -> Gaps:
     """Gaps of probe sets (indices into PROBES) to the regions they are tested against, in a pose
     (glob (22, 3, 3), pos (22, 3)), all in one batch: numpy's per-call cost, not arithmetic, is
     what a frame spends here.
 
     Broad phase: a part is measured when its bounding sphere comes within ``reach`` (per probe
-    set or one value) of the probe set's, and then only at the probes within BAND of its skin's
+    set or one value) of the probe set's, and then only at the probes within ``band`` (per probe
+    set or one value; default BAND) of its skin's
     box. Each distance counts for the region its nearest skin vertex belongs to by its heaviest
     weight (parts overlap across their seams; a region is where the vertices are, as the
-    evaluation cuts the skin). A region's gap is the softmin (length ``tau``) over its probes'
+    evaluation cuts the skin). A region's gap is the least of its probes'
     distances, each part moved rigidly by its joint and then corrected by how far skinning moves
-    the nearest skin vertex out of that rigid place (a bent spine's belly); its direction and
-    point are softmin-weighted too, so that they change continuously as the closest probe or
-    part changes. Regions with no probe that near are left out."""
+    the nearest skin vertex out of that rigid place (a bent spine's belly): the nearest probe's;
+    its direction and point are softmin-weighted (length ``tau``), so that they change
+    continuously as the closest probe or part changes. Regions with no probe that near are left out."""
     m = surface.model
     probes = np.asarray(probes, np.int64)
+    reach_of = np.broadcast_to(np.asarray(reach, np.float64), (len(probes),))
+    part_centre = pos[m.frames] + np.einsum("kij,kj->ki", glob[m.frames], m.centre * surface.scale)
+    # First without skinning: each probe set's sphere carried rigidly by its joint, grown by
+    # SKIN_SLACK for what skinning moves it by; a frame with nothing near ends here.
+    joint = m.probe_joint[probes]
+    rigid = pos[joint] + np.einsum("kij,kj->ki", glob[joint], m.probe_centre[probes] * surface.scale)
+    apart = np.sqrt(((rigid[:, None] - part_centre[None]) ** 2).sum(-1)) - (m.probe_radius[probes] * surface.scale
+                                                                            + SKIN_SLACK)[:, None] \
+        - m.radius[None] * surface.scale
+    if not np.any(ALLOWED[probes] & (apart < reach_of[:, None])):
+        return Gaps.empty()
     count = len(m.probes[0])
     transforms = surface.transforms(glob, pos)
     pts = surface.skin(glob, pos, np.concatenate([m.probes[i] for i in probes]), transforms)
@@ -589,10 +632,9 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     centre = pts.mean(1)
     spread = pts - centre[:, None]
     radius = np.sqrt(np.einsum("snk,snk->sn", spread, spread).max(1))
-    part_centre = pos[m.frames] + np.einsum("kij,kj->ki", glob[m.frames], m.centre * surface.scale)
     apart = np.sqrt(((centre[:, None] - part_centre[None]) ** 2).sum(-1)) - radius[:, None] \
         - m.radius[None] * surface.scale
-    near = ALLOWED[probes] & (apart < np.broadcast_to(np.asarray(reach, np.float64), (len(probes),))[:, None])
+    near = ALLOWED[probes] & (apart < reach_of[:, None])
     which, parts = np.nonzero(near)  # by probe set, then part
     if not len(parts):
         return Gaps.empty()
@@ -600,10 +642,10 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     rot = glob[frames]  # (P, 3, 3)
     row_pts = pts[which]  # (P, N, 3)
     local = np.matmul(row_pts - pos[frames][:, None, :], rot) * (1.0 / surface.scale)
-    # Only probes within BAND of a part's skin box are sampled; the others are too far to count.
+    # Only probes within the band of a part's skin box are sampled; the others are too far to count.
     outside = np.abs(local - m.box_centre[parts][:, None, :]) - m.box_half[parts][:, None, :]
     worst = np.maximum(np.maximum(outside[..., 0], outside[..., 1]), outside[..., 2])
-    r_idx, n_idx = np.nonzero(worst < BAND)
+    r_idx, n_idx = np.nonzero(worst < np.broadcast_to(np.asarray(band, np.float64), (len(probes),))[which][:, None])
     if not len(r_idx):
         return Gaps.empty()
     out, nearest = m.sample(parts[r_idx], local[r_idx, n_idx])
@@ -626,9 +668,12 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     look = np.flatnonzero(dist < low + 12.0 * tau)
     offsets = surface.skin_offsets(glob, pos, nearest[look], parts[r_idx[look]], transforms)
     dist[look] -= np.einsum("qi,qi->q", n[look], offsets)
-    w = np.exp(-(dist - np.repeat(np.minimum.reduceat(dist, starts), sizes)) * (1.0 / tau))
+    # The gap: the nearest probe's distance (continuous; a softmin-weighted mean would sit up to
+    # tau above it where many probes lie about as near, a flat hand on a hip, and let the hand
+    # sink that far). Direction and point: softmin-weighted, continuous as the nearest changes.
+    gap = np.minimum.reduceat(dist, starts)
+    w = np.exp(-(dist - np.repeat(gap, sizes)) * (1.0 / tau))
     total = np.add.reduceat(w, starts)
-    gap = np.add.reduceat(w * dist, starts) / total
     direction = np.add.reduceat(w[:, None] * n, starts, axis=0)
     direction /= np.maximum(np.sqrt(np.einsum("gi,gi->g", direction, direction)), 1e-9)[:, None]
     point = np.add.reduceat(w[:, None] * row_pts[r_idx, n_idx], starts, axis=0) / total[:, None]
