@@ -1,7 +1,8 @@
 """Per-frame cost of the self-contact correction in the retarget stage, beside the stage without it.
 
 Run: .venv/bin/python benchmarks/bench_contacts.py [--frames 600] [--source BODY] [--targets A,B]
-Timing (median / p95 ms, 10 warm-up frames skipped), one process, the two configurations run
+Timing (median / p95 ms, 10 warm-up frames skipped; wall clock, and the thread's CPU time, which
+a machine busy with other jobs does not inflate), one process, the two configurations run
 frame by frame in turn (so that a busy machine slows both alike), as the pipeline's retarget
 stage runs them: the analytic retargeter (foot lock + floor) from exact skeletons, then LBS of
 the avatar (~7k vertices), without and with the self-contacts (the performer's true body as in a
@@ -72,21 +73,24 @@ def main() -> None:
         kept = ContactRetargeter(AnalyticRetargeter(src.rest_joints, tgt.rest_joints), target, tgt.rest_joints,
                                  src.rest_joints, performer)
         times: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
+        cpu: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
         for j in joints:
             for label, rt in (("without contacts", plain), ("with contacts", kept)):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.thread_time()
                 _, _, posed = rt.step(j)
                 skin(tgt.vertices, tgt.weights, pose_transforms(rt.last_globals, posed, tgt.rest_joints)[None])
                 times[label].append(time.perf_counter() - t0)
+                cpu[label].append(time.thread_time() - c0)
         print(f"  -> {tgt.name} ({len(tgt.vertices)} vertices), corrected frames "
               f"{kept.counters['frames_corrected']} of {len(joints)}, with a hand contact "
               f"{kept.counters['frames_with_hand_contacts']}")
-        stats = {}
-        for label, ts in times.items():
-            stats[label] = percentiles(np.array(ts[10:]) * 1e3, (50, 95))
-            print(f"     {label:18s} {stats[label]['p50']:7.3f} / {stats[label]['p95']:7.3f}")
-        a, b = stats["without contacts"], stats["with contacts"]
-        print(f"     {'ratio':18s} {b['p50'] / a['p50']:7.2f}x / {b['p95'] / a['p95']:6.2f}x")
+        for name, table in (("wall", times), ("cpu", cpu)):
+            stats = {}
+            for label, ts in table.items():
+                stats[label] = percentiles(np.array(ts[10:]) * 1e3, (50, 95))
+                print(f"     {name} {label:18s} {stats[label]['p50']:7.3f} / {stats[label]['p95']:7.3f}")
+            a, b = stats["without contacts"], stats["with contacts"]
+            print(f"     {name} {'ratio':18s} {b['p50'] / a['p50']:7.2f}x / {b['p95'] / a['p95']:6.2f}x")
     t0 = time.perf_counter()
     build_surface_model(load_body(args.targets.split(",")[-1]))
     print(f"  building an avatar's surface (cache cold, once per avatar): {time.perf_counter() - t0:.2f} s")

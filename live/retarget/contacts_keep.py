@@ -46,8 +46,8 @@ from live.retarget.contacts_surface import BAND, PROBES, REGIONS, BodySurface, G
 
 #: Gauss-Newton steps per frame at most (each measures the gaps once), and at most when a hand
 #: or forearm is still more than DEEP (m) inside the body (a strike, the first frame).
-_ITERATIONS = 2
-_DEEP_ITERATIONS = 5
+_ITERATIONS = 1
+_DEEP_ITERATIONS = 4
 DEEP = 0.004
 #: Weight of the elbows' and wrists' displacement from the retargeter's pose against the
 #: residuals (m^2 per m^2): small, so the goals win and the displacement only picks, of the

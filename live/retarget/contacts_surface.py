@@ -187,6 +187,9 @@ class SurfaceModel:
         joints = np.array([JOINT_INDEX[p.joint] for p in PROBES], np.int64)
         rel = [self.vertices[v] - self.rest_joints[j] for v, j in zip(self.probes, joints)]
         mid = np.array([0.5 * (r.min(0) + r.max(0)) for r in rel])
+        every = np.concatenate(self.probes)
+        object.__setattr__(self, "probe_weights", dense[every])
+        object.__setattr__(self, "probe_rest", np.asarray(self.vertices, np.float64)[every])
         object.__setattr__(self, "probe_joint", joints)
         object.__setattr__(self, "probe_centre", mid)
         object.__setattr__(self, "probe_radius", np.array([np.sqrt(((r - c) ** 2).sum(1)).max() for r, c in zip(rel, mid)]))
@@ -560,6 +563,7 @@ def body_surface(body) -> BodySurface:
 
 
 
+_ALL_PROBES = np.arange(len(PROBES))
 #: ALLOWED[i, k]: probe set i is tested against part k (TARGETS as a table).
 ALLOWED = np.zeros((len(PROBES), len(PARTS)), bool)
 for _i, _t in enumerate(TARGETS):
@@ -627,7 +631,14 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
         return Gaps.empty()
     count = len(m.probes[0])
     transforms = surface.transforms(glob, pos)
-    pts = surface.skin(glob, pos, np.concatenate([m.probes[i] for i in probes]), transforms)
+    if len(probes) == len(PROBES) and np.array_equal(probes, _ALL_PROBES):
+        # All probe sets (the usual call): their weights and rest positions gathered once.
+        blend = m.probe_weights @ transforms
+        v = m.probe_rest
+        pts = (blend[:, 0:9:3] * v[:, 0:1] + blend[:, 1:9:3] * v[:, 1:2] + blend[:, 2:9:3] * v[:, 2:3]
+               + blend[:, 9:])
+    else:
+        pts = surface.skin(glob, pos, np.concatenate([m.probes[i] for i in probes]), transforms)
     pts = pts.reshape(len(probes), count, 3)
     centre = pts.mean(1)
     spread = pts - centre[:, None]
