@@ -18,7 +18,8 @@ user's camera) and is replayed through the shipped skeleton stage (a fresh
 >= 8 true joints project into the image in front of the camera (beyond the sensor's minimum
 range); a miss is a frame in view without a skeleton. Where a skeleton comes out: PA-MPJPE
 (frame-invariant) and, when the skeleton says which camera_to_world it was solved in, MPJPE after
-root alignment with the truth moved into that frame through the camera. Timing: the finder
+root alignment with the truth moved into that frame through the camera, and "elsewhere": frames
+whose skeleton's pelvis is over 0.5 m from the performer's there (on something else). Timing: the finder
 (``PersonFinder.find``) and the whole stage (``SkeletonStage.estimate``), median and p95 per frame.
 
 Prints tables per height, pitch, floor condition, posture and framing, and a height x pitch
@@ -58,6 +59,8 @@ FPS = 15.0
 SECONDS = 2.0
 START_S = 0.3
 IN_VIEW_JOINTS = 8
+#: A skeleton whose pelvis is farther than this from the performer's is on something else.
+ELSEWHERE_M = 0.5
 FLOOR_IN_VIEW_SHARE = 0.05  # of the image: below it the floor is out of frame
 CAMERA = "oak-d"
 BENCH_VERSION = 1  # bump to regenerate the cached sessions
@@ -278,6 +281,8 @@ def replay(spec: Spec, stage_factory) -> dict:
             solved = getattr(skel, "camera_to_world", None)
             if solved is not None:
                 rec["mpjpe_m"] = _root_aligned_error(pred, gt, np.asarray(solved, np.float64), true_c2w)
+                truth = between_worlds(gt[0], true_c2w, np.asarray(solved, np.float64))
+                rec["pelvis_off_m"] = float(np.linalg.norm(pred[0] - truth))
         frames.append(rec)
     details = getattr(stage, "details", None)  # which up source the finder used (when it says)
     details = (details() if callable(details) else details) or {}
@@ -295,6 +300,9 @@ def summarize(frames: list[dict]) -> dict:
     pa = [f["pa_mpjpe_m"] for f in found if f["in_view"]]
     if pa:
         out["pa_mpjpe_mm"] = round(1000 * float(np.mean(pa)), 1)
+    off = [f["pelvis_off_m"] for f in found if f["in_view"] and "pelvis_off_m" in f]
+    if off:
+        out["elsewhere"] = sum(d > ELSEWHERE_M for d in off)
     mp = [f["mpjpe_m"] for f in found if f["in_view"] and "mpjpe_m" in f]
     if mp:
         out["mpjpe_mm"] = round(1000 * float(np.mean(mp)), 1)
@@ -357,8 +365,8 @@ def _fmt(v) -> str:
 
 
 def format_tables(rep: dict) -> str:
-    cols = ("frames", "in_view", "missed", "missed_pct", "found_out_of_view", "pa_mpjpe_mm", "mpjpe_mm")
-    heads = ("frames", "in view", "missed", "missed %", "found, out of view", "PA-MPJPE mm", "MPJPE mm")
+    cols = ("frames", "in_view", "missed", "missed_pct", "elsewhere", "found_out_of_view", "pa_mpjpe_mm", "mpjpe_mm")
+    heads = ("frames", "in view", "missed", "missed %", "elsewhere", "found, out of view", "PA-MPJPE mm", "MPJPE mm")
     lines = []
 
     def table(title: str, rows: dict) -> None:

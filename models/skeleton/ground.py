@@ -8,9 +8,12 @@ of trust (``GroundEstimator.camera_to_world``):
    the floor height then comes from a floor plane at that orientation, or from the performer;
 3. ``floor``: a floor plane wherever one is visible (a small patch in the bottom rows, behind
    the performer): the lowest large plane within ``max_tilt_deg`` of the level camera's up;
-4. ``level``: no floor in view (a close-up at a desk, a floor the sensor does not return): a
-   level camera, refined by the performer's own vertical axis when the whole body is seen, and
-   the floor placed under the performer (``floor_under_person``).
+4. ``wall``: no floor in view, but a wall: walls are vertical, so up lies in the wall's plane
+   (a wall ahead gives the camera's pitch, a wall beside its roll; ``find_wall``), the floor
+   placed under the performer;
+5. ``level``: no floor and no wall in view (a close-up at a desk, a floor the sensor does not
+   return): a level camera, refined by the performer's own vertical axis when the whole body is
+   seen, and the floor placed under the performer (``floor_under_person``).
 
 Pure functions for the geometry; ``GroundEstimator`` keeps the estimate for a static camera,
 re-checks it every ``recheck_s`` and records each change of source (for stats.json).
@@ -18,6 +21,7 @@ re-checks it every ``recheck_s`` and records each change of source (for stats.js
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,6 +93,82 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
         keep[np.asarray(inliers, np.int64)] = False
         cand = cand[keep]
     return best
+
+
+def find_wall(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt_deg: float = 35.0,
+              distance_m: float = 0.02, min_share: float = 0.08, min_width_m: float = 1.5, min_height_m: float = 1.0,
+              min_fill: float = 0.4, max_planes: int = 4, seed: int = 0) -> np.ndarray | None:
+    """Up (camera axes) from the largest wall of a camera-frame cloud (M, 3), or None.
+
+    A wall is a plane found by RANSAC (up to ``max_planes``, each on what the previous left, within
+    ``distance_m`` and the noise at the cloud's median range) whose
+    normal is within ``max_tilt_deg`` of horizontal by ``up_prior`` (a camera pitched or rolled
+    more than that from level sees its floor within that angle of its up, and its walls beyond:
+    neither is taken for the other), holding ``min_share`` of the cloud, and whose points span at
+    least ``min_width_m`` across ``up_prior`` and ``min_height_m`` along it (a performer's torso
+    near the camera is a plane too, but neither that wide nor that tall), and whose points fill
+    at least ``min_fill`` of that extent (a plane that cuts across a corner holds two lines of
+    the walls, not a surface; ``_fill``). Up is ``up_prior``
+    in the wall's plane: for a wall facing the camera the one across the camera's x axis (a
+    camera pitched but not rolled, as the level prior assumes: the wall gives the pitch), for a
+    wall beside it ``up_prior`` turned into the plane (the wall gives the roll)."""
+    pts = np.asarray(points_cam, np.float64)
+    prior = np.asarray(up_prior, np.float64) / np.linalg.norm(up_prior)
+    min_support = max(150, int(min_share * len(pts)))
+    if len(pts) < min_support:
+        return None
+    rng = np.random.default_rng(seed)
+    cand = pts[rng.choice(len(pts), 20000, replace=False)] if len(pts) > 20000 else pts
+    min_support = max(150, int(min_share * len(cand)))
+    # Inliers within distance_m + 4 mm x z^2 at the cloud's median range: a far wall's depth
+    # noise and steps (several cm at 5 m) would otherwise slice it into thin tilted layers.
+    tolerance = distance_m + 0.004 * float(np.median(cand[:, 2])) ** 2
+    walls: list[tuple[int, np.ndarray]] = []
+    for _ in range(max_planes):
+        if len(cand) < min_support:
+            break
+        n, _, inliers = ransac_plane(cand, tolerance, 200, rng)
+        # A plane square to the optical axis says nothing the level prior does not (the up it
+        # gives is the prior's), and the flat steps of a stereo camera's quantised far depth are
+        # such planes: they are skipped, so that they do not hide a wall that says more.
+        square = abs(float(n[2])) > np.cos(np.radians(3.0))
+        if (len(inliers) >= min_support and abs(float(n @ prior)) <= np.sin(np.radians(max_tilt_deg))
+                and not square):
+            on = cand[inliers]
+            along = on @ prior
+            across_dir = np.cross(n, prior)
+            across = on @ (across_dir / np.linalg.norm(across_dir))
+            a0, a1 = np.quantile(across, (0.02, 0.98))
+            h0, h1 = np.quantile(along, (0.02, 0.98))
+            if a1 - a0 >= min_width_m and h1 - h0 >= min_height_m and _fill(across, along, (a0, a1, h0, h1)) >= min_fill:
+                walls.append((len(inliers), n))
+        keep = np.ones(len(cand), bool)
+        keep[np.asarray(inliers, np.int64)] = False
+        cand = cand[keep]
+    if not walls:
+        return None
+    n = max(walls, key=lambda w: w[0])[1]
+    # A wall that faces the camera (within 60 degrees): up along it and across the image's rows
+    # (a camera pitched, not rolled: the level prior's own assumption); a wall beside: up turned
+    # into it from the prior (the roll it shows, the prior's pitch).
+    along_rows = np.cross(n, np.array([1.0, 0.0, 0.0]))  # in the wall and across the camera's x
+    if np.linalg.norm(along_rows) >= 0.5:
+        up = along_rows / np.linalg.norm(along_rows)
+    else:
+        up = prior - (prior @ n) * n
+        up = up / np.linalg.norm(up)
+    return up if up @ prior > 0 else -up
+
+
+def _fill(u: np.ndarray, v: np.ndarray, box: tuple[float, float, float, float], cell_m: float = 0.25) -> float:
+    """The share of the cells (``cell_m`` square) of ``box`` (u0, u1, v0, v1) that hold a point
+    (u, v) of a plane's inliers."""
+    u0, u1, v0, v1 = box
+    nu, nv = max(int(np.ceil((u1 - u0) / cell_m)), 1), max(int(np.ceil((v1 - v0) / cell_m)), 1)
+    inside = (u >= u0) & (u <= u1) & (v >= v0) & (v <= v1)
+    iu = np.minimum(((u[inside] - u0) / cell_m).astype(np.intp), nu - 1)
+    iv = np.minimum(((v[inside] - v0) / cell_m).astype(np.intp), nv - 1)
+    return len(np.unique(iu * nv + iv)) / (nu * nv)
 
 
 def ransac_plane(points: np.ndarray, distance_m: float, iterations: int, rng: np.random.Generator
@@ -195,16 +275,23 @@ class GroundEstimator:
             return self._up
         return LEVEL_UP if self.gravity_up is None else np.asarray(self.gravity_up, np.float64)
 
-    def update(self, t_ns: int, points_cam: np.ndarray | None) -> None:
+    def update(self, t_ns: int, points_cam: np.ndarray | None,
+               finer: Callable[[], np.ndarray] | None = None) -> None:
         """Search the floor again when due (``points_cam``: the frame's camera points, or None
-        when there is nothing to search in)."""
+        when there is nothing to search in; ``finer``: more points of the same view, searched
+        when those hold no floor and no wall, e.g. a small image on a finer stride: a floor seen
+        at a grazing angle may hold too few points on the coarse one)."""
         if not self.due(t_ns) or points_cam is None:
             return
         self._checked_ns = t_ns
         self.searches += 1
         prior = LEVEL_UP if self.gravity_up is None else np.asarray(self.gravity_up, np.float64)
         # With gravity the floor's normal is known to a few degrees; without it, any sane pitch.
-        floor = find_floor(points_cam, prior, max_tilt_deg=8.0 if self.gravity_up is not None else 50.0)
+        tilt = 8.0 if self.gravity_up is not None else 50.0
+        floor = find_floor(points_cam, prior, max_tilt_deg=tilt)
+        if floor is None and finer is not None:
+            points_cam = finer()
+            floor = find_floor(points_cam, prior, max_tilt_deg=tilt)
         if floor is not None:
             up, height = floor
             up = prior if self.gravity_up is not None else up
@@ -217,6 +304,13 @@ class GroundEstimator:
         if self.gravity_up is not None:
             self._up = None
             self._set_source(t_ns, "imu")
+            return
+        wall_up = find_wall(points_cam)
+        if wall_up is not None:
+            if self._up is None or self.source != "wall" or angle_deg(wall_up, self._up) > self.MIN_TURN_DEG:
+                self._up = wall_up
+            self._body_up = None
+            self._set_source(t_ns, "wall")
         else:
             if self.source not in ("level", "level+body"):
                 self._up = self._body_up = None
@@ -224,7 +318,7 @@ class GroundEstimator:
 
     def refine_with_body(self, t_ns: int, axis: np.ndarray | None, weight: float = 0.1) -> None:
         """Blend the performer's vertical axis (camera axes) into a level camera's up."""
-        if axis is None or self.gravity_up is not None or self.floor_seen:
+        if axis is None or self.gravity_up is not None or self.floor_seen or self.source == "wall":
             return
         current = self.up() if self._body_up is None else self._body_up
         blended = current * (1.0 - weight) + np.asarray(axis, np.float64) * weight

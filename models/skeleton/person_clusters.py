@@ -37,10 +37,35 @@ def _narrow_top(pts: np.ndarray, ys: np.ndarray, y_top: float, c: np.ndarray, ey
     return float(np.clip(1.2 - (t_hi - t_lo) / (hi - lo), 0.1, 1.0))
 
 
+def plane_share(pts: np.ndarray, tolerance_m: float, max_points: int = 400, hypotheses: int = 48) -> float:
+    """The largest share of a cluster's points (3, M) within ``tolerance_m`` of one plane (a
+    RANSAC count on at most ``max_points`` of them, every k-th, with a fixed seed: the same
+    cluster always gets the same share). A box, shelves, a wall or a figure of boxes puts most
+    of what the camera sees of it on one face (0.7-1.0); a person's limbs, head and the curve of
+    the torso leave 0.4-0.6 on the best plane."""
+    m = pts.shape[1]
+    sub = np.ascontiguousarray(pts[:, ::max(1, -(-m // max_points))].T, np.float64)
+    n = len(sub)
+    if n < 10:
+        return 0.0
+    picks = np.random.default_rng(0).integers(0, n, size=(hypotheses, 3))
+    a, b, c = sub[picks[:, 0]], sub[picks[:, 1]], sub[picks[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-9
+    if not ok.any():
+        return 0.0
+    normals = normals[ok] / norms[ok, None]
+    offsets = -np.einsum("ij,ij->i", normals, a[ok])
+    inliers = (np.abs(sub @ normals.T + offsets) <= tolerance_m).sum(axis=0)
+    return float(inliers.max()) / n
+
+
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
                         last_center: np.ndarray | None, moving: np.ndarray | None = None,
                         cut_below: np.ndarray | None = None, cut_above: np.ndarray | None = None,
-                        floor_known: bool = True) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
+                        floor_known: bool = True, pull: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
     """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
     the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
     moving: (M,) bool, points whose depth changed lately (``PersonFinder._moved``), or None when not
@@ -52,7 +77,10 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
     previous person (tracked) passes the top test at half its threshold: a raised arm or a turn
     that widens the top for a frame does not lose them. floor_known: False when no floor is in view
 (heights are then above the lowest points seen, not above a floor): the height limit applies
-to a cluster's own extent."""
+to a cluster's own extent. pull: whether the previous person's position holds back every other candidate
+(score / (1 + distance)); False while that person has not been seen moving: it then holds back
+only candidates moving no more than it, so that a first pick of still clutter gives way to a
+performer who moves (the tracked cluster's half threshold applies either way)."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -111,6 +139,11 @@ to a cluster's own extent."""
         tracked = labels_flat[cj * cells + ci] if 0 <= ci < cells and 0 <= cj < cells else 0
         if tracked:
             order = np.concatenate([[tracked], order[order != tracked]])
+    # Which candidates the previous person's position holds back (score / (1 + distance)): all of
+    # them, or with pull off only those moving no more than the previous person's cluster.
+    pulled = np.full(n, last_center is not None)
+    if not pull and moving is not None:
+        pulled &= weight <= (weight[tracked] if tracked else cfg.static_weight)
     best, best_score = None, 0.0
     for k, lab in enumerate(order):
         if bound[lab] <= best_score:
@@ -126,7 +159,7 @@ to a cluster's own extent."""
         footprint = np.hypot(b_i1 - b_i0 + 1, b_j1 - b_j0 + 1) * cfg.cell_m
         if footprint > cfg.max_footprint_m + 2 * cfg.cell_m:
             continue  # a wall or a large piece of furniture
-        if last_center is not None and best is not None:
+        if pulled[lab] and best is not None:
             # Its median lies in its box: the box's distance to the previous person bounds
             # the score's distance divisor (less 1 mm for float32 cell rounding).
             lo = origin + np.array([i0 + b_i0, j0 + b_j0]) * cfg.cell_m
@@ -154,9 +187,14 @@ to a cluster's own extent."""
         if narrow < (cfg.min_narrow_top / 2 if lab == tracked else cfg.min_narrow_top):
             continue  # flat-topped: furniture (this also rejects a person lying down)
         score = counts[lab] * min(height, 1.8) ** 2 * narrow
+        if cfg.flat_share is not None:
+            # Not a flat face: a cluster with more of its points on one plane than a person has
+            # scores less, down to flat_weight for a cluster all on one plane.
+            flat = (1.0 - plane_share(cluster, cfg.flat_tolerance_m)) / (1.0 - cfg.flat_share)
+            score *= min(max(flat, cfg.flat_weight), 1.0)
         if moving is not None:
             score *= weight[lab]
-        if last_center is not None:
+        if pulled[lab]:
             score /= 1.0 + np.linalg.norm(c - last_center)
         if score > best_score:
             best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score

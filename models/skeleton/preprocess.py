@@ -67,6 +67,9 @@ def _median(x: np.ndarray) -> float:
 
 
 _EYE4 = np.eye(4)
+#: A small image with no floor on the search stride is searched again on a stride that reads at
+#: least this many pixels (a 640 x 400 image reads 16,000 on a stride of 4).
+FLOOR_SEARCH_PIXELS = 12_000
 
 
 def _is_identity(m: np.ndarray) -> bool:
@@ -116,6 +119,7 @@ class _Search:
     person: np.ndarray
     c2w: np.ndarray
     cut_below: bool = False  # the person reaches the image's bottom edge
+    moved_share: float | None = None  # the person's share of points that moved (None: no cue)
 
     @cached_property
     def person_pixels(self) -> np.ndarray:
@@ -143,6 +147,10 @@ class PersonFinder:
     _full_search_ns: int | None = field(default=None, repr=False)
     _confirmed: bool = field(default=False, repr=False)
     _cue_ready: bool = field(default=False, repr=False)  # the motion cue compares motion_lag_s apart
+    # The tracked person has been seen moving (since they were first found within track_margin_m
+    # of each frame before): only such a track holds back moving candidates and gets a window,
+    # so a first pick of still clutter (a shelf, a figure) gives way to the performer who moves.
+    _track_moved: bool = field(default=False, repr=False)
 
     def world_points(self, frame: DepthFrame, stride: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """Valid, in-range world points (M, 3) float32 of a frame and the camera_to_world used
@@ -174,12 +182,25 @@ class PersonFinder:
         if not _is_identity(c2w):
             ground.use_given(frame.t_ns)
         else:
-            ground.update(frame.t_ns, self._camera_points(frame, s) if ground.due(frame.t_ns) else None)
+            fs = self._floor_stride(frame, s)
+            finer = None if fs == s else (lambda: self._camera_points(frame, fs))
+            ground.update(frame.t_ns, self._camera_points(frame, s) if ground.due(frame.t_ns) else None, finer)
             if not ground.floor_seen:
                 self.counters.no_floor += 1
         self.counters.floor_searches = ground.searches
         self.counters.up_source_changes = len(ground.changes)
         return c2w if ground.source == "given" else ground.camera_to_world(0.0)
+
+    def _floor_stride(self, frame: DepthFrame, s: int) -> int:
+        """The stride the floor is searched on again when ``s`` shows none: ``s``, or a finer one
+        that reads at least FLOOR_SEARCH_PIXELS of a small image (a floor seen at a grazing angle
+        holds a few hundred of them; ``find_floor``'s minimum support is counted in points)."""
+        if frame.depth_mm is None:
+            return s
+        h, w = frame.depth_mm.shape
+        while s > 1 and -(-h // s) * -(-w // s) < FLOOR_SEARCH_PIXELS:
+            s -= 1
+        return s
 
     @property
     def _no_floor(self) -> bool:
@@ -272,15 +293,19 @@ class PersonFinder:
         if found is None:
             self.counters.nobody += 1
             self._track = None
+            self._track_moved = False
             return None
         c2w = found.c2w
         person = found.person
         if self._no_floor:
             c2w, person = self._place_floor(frame.t_ns, found)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
+        same = (self._last_center is not None and cfg.track_margin_m is not None
+                and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
+        moved = found.moved_share is not None and found.moved_share > cfg.motion_noise_share
+        self._track_moved = moved or (same and self._track_moved)
         if whole_image:  # a window only once a whole-image search agrees with the frame before
-            self._confirmed = (self._last_center is not None and cfg.track_margin_m is not None
-                               and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
+            self._confirmed = same and self._track_moved
         self._last_center = center
         to_world = _person_frame(center, c2w[:3, 3])
         rng = np.random.default_rng(frame.t_ns & 0xFFFFFFFF)
@@ -339,13 +364,18 @@ class PersonFinder:
             rows = -(-frame.depth_mm.shape[0] // s)
             cut_below = pixels[above] >= (rows - 2) * width
             cut_above = pixels[above] < 2 * width
+        # The previous person holds back every other candidate once seen moving (and always
+        # without a motion cue: no depth image); until then only candidates moving no more than
+        # it (``find_person_cluster``'s pull).
+        pull = self._track_moved or pixels is None
         got = find_person_cluster(np.take(world, above, axis=1), c2w[[0, 2], 3], min_points, self.config,
                                   self._last_center, moving=moving, cut_below=cut_below, cut_above=cut_above,
-                                  floor_known=not self._no_floor)
+                                  floor_known=not self._no_floor, pull=pull)
         if got is None:
             return None
         cut = cut_below is not None and int(np.count_nonzero(cut_below[got[0]])) >= 3
-        return _Search(world, pixels, width, above, *got, c2w, cut)
+        share = None if moving is None else float(np.count_nonzero(moving[got[0]])) / got[4].shape[1]
+        return _Search(world, pixels, width, above, *got, c2w, cut, share)
 
     def _tracking_roi(self, frame: DepthFrame, s: int) -> tuple[int, int, int, int] | None:
         """Strided rows r0:r1 and cols c0:c1 around the previous person, grown by
@@ -406,11 +436,12 @@ class PersonFinder:
         return None if ref is None else (depth, ref)
 
     def _moved(self, depths: tuple[np.ndarray, np.ndarray], at: np.ndarray) -> np.ndarray:
-        """Bool per flat index ``at`` of the strided depth image: depth changed since the
-        reference of ``_motion_reference`` (only at the points asked about, those above the
-        floor: a third of the image or less)."""
+        """Bool per flat index ``at`` of the strided depth image: something came nearer since
+        the reference of ``_motion_reference`` (only at the points asked about, those above the
+        floor: a third of the image or less). Only nearer: where a performer moved away the
+        surface behind them shows again, farther, and that wall or shelf did not move."""
         cfg = self.config
         depth, ref = depths
         z = np.take(depth.reshape(-1), at).astype(np.float32) * np.float32(0.001)
         z_ref = np.take(ref.reshape(-1), at).astype(np.float32) * np.float32(0.001)
-        return (z > 0) & (z_ref > 0) & (np.abs(z - z_ref) > cfg.motion_change_m + 0.01 * z * z)
+        return (z > 0) & (z_ref > 0) & (z_ref - z > cfg.motion_change_m + 0.01 * z * z)

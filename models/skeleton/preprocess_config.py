@@ -24,11 +24,18 @@ class PreprocessConfig:
     max_height_m: float = 2.4
     min_narrow_top: float = 0.4
     max_footprint_m: float = 1.8
+    # Flat faces: a cluster with more than flat_share of its points within flat_tolerance_m of one
+    # plane (a box, shelves, a figure of boxes) scores in proportion to the share off it, down to
+    # flat_weight (``person_clusters.plane_share``). None: no such test.
+    flat_share: float | None = 0.6
+    flat_tolerance_m: float = 0.03
+    flat_weight: float = 0.2
     background_margin_m: float = 0.10
     # Motion cue: a cluster whose depth has not changed since a frame motion_lag_s ago (or the
     # oldest frame kept, early on) scores static_weight times a moving one: furniture never
-    # moves, a performer does. A point moved when its depth changed by more than
-    # motion_change_m + 1 cm x z^2 (stereo noise grows with the square of the range); a cluster
+    # moves, a performer does. A point moved when it came nearer by more than
+    # motion_change_m + 1 cm x z^2 (stereo noise grows with the square of the range; only nearer:
+    # the wall a performer uncovers as they step aside did not move); a cluster
     # moves in proportion to its share of moved points above motion_noise_share (what noise and
     # flickering edges give a still surface), fully at motion_full_share. A still performer
     # next to still furniture gets no cue either way.

@@ -1,0 +1,130 @@
+"""The person finder's cues against clutter: flat faces, walls for up without a floor, and a first
+pick of still clutter giving way to the performer who moves."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from live.core.frames import DepthFrame
+from live.core.rotations import angle_deg
+from live.core.skeleton import default_rest_joints
+from models.skeleton.ground import LEVEL_UP, find_wall
+from models.skeleton.person_clusters import plane_share
+from models.skeleton.preprocess import PersonFinder
+from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
+from sim.room import Room, capsule_body
+
+JOINTS = default_rest_joints(1.75).astype(np.float64)
+
+
+def test_a_box_face_is_flat_and_a_person_is_not():
+    rng = np.random.default_rng(1)
+    face = np.stack([rng.uniform(-0.25, 0.25, 800), rng.uniform(0.0, 1.7, 800), rng.normal(0.0, 0.005, 800)])
+    assert plane_share(face.astype(np.float32), 0.03) > 0.95
+    # The camera-facing half of the capsule person.
+    verts = capsule_body(JOINTS)[0]
+    front = verts[verts[:, 2] > np.median(verts[:, 2])]
+    assert plane_share(front.T.astype(np.float32), 0.03) < 0.7
+    assert plane_share(face[:, :5].astype(np.float32), 0.03) == 0.0  # too few points to say
+
+
+def _wall_points(pitch_deg: float, yaw_deg: float = 0.0, width: float = 6.0, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points of a wall 3 m ahead (turned by yaw) seen from a camera pitched by
+    pitch_deg, and the true up in camera axes."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(-width / 2, width / 2, 4000), rng.uniform(0.0, 2.6, 4000)
+    yaw = np.radians(yaw_deg)
+    world = np.stack([u * np.cos(yaw), v, -3.0 + u * np.sin(yaw)], axis=1) + rng.normal(0, 0.004, (4000, 3))
+    p = np.radians(pitch_deg)
+    # Camera 1.5 m high looking along -z, pitched up by p: world = R cam + t.
+    forward = np.array([0.0, np.sin(p), -np.cos(p)])
+    right = np.array([1.0, 0.0, 0.0])
+    down = np.cross(forward, right)
+    rot = np.stack([right, down, forward], axis=1)
+    cam = (world - [0.0, 1.5, 0.0]) @ rot
+    return cam, rot.T @ np.array([0.0, 1.0, 0.0])
+
+
+def test_a_wall_ahead_gives_the_pitch_of_a_camera_without_floor():
+    for pitch, yaw in ((-25.0, 0.0), (-30.0, 20.0), (10.0, -15.0)):
+        cam, true_up = _wall_points(pitch, yaw)
+        up = find_wall(cam)
+        assert up is not None and angle_deg(up, true_up) < 1.0
+        assert angle_deg(LEVEL_UP, true_up) > 9.0  # the level prior alone is off
+
+
+def test_no_wall_from_a_small_plane_or_a_steep_floor():
+    cam, _ = _wall_points(-20.0, width=0.5)  # a torso-sized plane: not a wall
+    assert find_wall(cam) is None
+    cam, _ = _wall_points(-60.0)  # beyond max_tilt_deg: a floor could look like that
+    assert find_wall(cam) is None
+
+
+def _scene_frame(k: int, performer_z: float) -> DepthFrame:
+    """A still, person-sized figure near the camera and the performer farther back, both capsule
+    bodies, at 30 fps (frame k)."""
+    figure = capsule_body(default_rest_joints(1.9).astype(np.float64) + [-1.2, 0.0, 0.9])
+    performer = capsule_body(JOINTS + [1.0, 0.0, performer_z])
+    verts = np.concatenate([figure[0], performer[0]])
+    faces = np.concatenate([figure[1], performer[1] + len(figure[0])])
+    c2w = look_at_camera(3.0, 1.3, 0.4)
+    cam = VirtualDepthCamera("oak-d", c2w, noise=NoiseModel(), seed=k)
+    return DepthFrame(t_ns=1_000_000_000 + k * 33_333_333, sensor="cam", camera_to_world=c2w,
+                      depth_mm=cam.render(verts, faces, room=Room(width=9.0, depth=9.0)), intrinsics=cam.intrinsics)
+
+
+def test_a_first_pick_of_still_clutter_gives_way_to_the_performer_who_moves():
+    finder = PersonFinder()
+    picks = []
+    for k in range(24):
+        # Still for a moment, then walking toward the camera at 0.9 m/s.
+        cloud = finder.find(_scene_frame(k, -2.0 + 0.9 * max(k - 4, 0) / 30.0))
+        assert cloud is not None
+        picks.append(cloud.to_world[0, 3])
+    assert picks[0] < -0.9  # the bigger, nearer figure while nothing moves
+    # The performer once they move (the previous person's pull kept the figure to the end: it
+    # held back a moving performer 2 m from it as much as still clutter).
+    assert all(x > 0.7 for x in picks[16:])
+
+
+def test_motion_counts_what_came_nearer_not_the_wall_a_performer_uncovers():
+    finder = PersonFinder()
+    before = np.full((2, 3), 3000, np.uint16)
+    before[:, 0] = 2000  # the performer in the first column, the wall at 3 m behind
+    after = np.full((2, 3), 3000, np.uint16)
+    after[:, 1] = 2000  # they stepped one column over
+    moved = finder._moved((after, before), np.arange(6)).reshape(2, 3)
+    assert moved[:, 1].all() and not moved[:, 0].any() and not moved[:, 2].any()
+
+
+def test_the_floor_search_reads_enough_pixels_of_a_small_image():
+    finder = PersonFinder()
+
+    def stride(w: int, h: int) -> int:
+        f = DepthFrame(t_ns=0, sensor="cam", camera_to_world=np.eye(4), depth_mm=np.zeros((h, w), np.uint16),
+                       intrinsics=np.eye(3))
+        return finder._floor_stride(f, 4)
+
+    assert stride(640, 400) == 4 and stride(640, 480) == 4  # 16,000 and 19,200 pixels on a stride of 4
+    assert stride(320, 240) == 2  # 4,800 on a stride of 4: a floor at a grazing angle keeps too few
+
+
+def test_a_floor_missing_from_the_coarse_points_is_searched_in_the_finer_ones():
+    from models.skeleton.ground import GroundEstimator
+
+    rng = np.random.default_rng(3)
+    wall, _ = _wall_points(-10.0)
+    floor = np.stack([rng.uniform(-2, 2, 3000), np.full(3000, 1.5), rng.uniform(1.0, 4.0, 3000)], axis=1)
+    asked = []
+
+    def finer() -> np.ndarray:
+        asked.append(True)
+        return np.concatenate([wall, floor])
+
+    ground = GroundEstimator()
+    ground.update(0, wall[::20], finer)  # too few points of anything on the coarse stride
+    assert asked and ground.source == "floor" and abs(ground.camera_to_world(0.0)[1, 3] - 1.5) < 0.05
+    asked.clear()
+    ground = GroundEstimator()
+    ground.update(0, np.concatenate([wall, floor]), finer)
+    assert not asked and ground.source == "floor"  # found on the coarse one: the finer is not read
