@@ -187,15 +187,24 @@ performer who moves (the tracked cluster's half threshold applies either way).""
         if narrow < (cfg.min_narrow_top / 2 if lab == tracked else cfg.min_narrow_top):
             continue  # flat-topped: furniture (this also rejects a person lying down)
         score = counts[lab] * min(height, 1.8) ** 2 * narrow
+
+        def scored(flat: float) -> float:
+            out = score * flat
+            if moving is not None:
+                out *= weight[lab]
+            if pulled[lab]:
+                out /= 1.0 + np.linalg.norm(c - last_center)
+            return out
+
+        if scored(1.0) <= best_score:
+            continue  # it cannot win whatever its flatness (the plane count costs ~0.1 ms)
         if cfg.flat_share is not None:
             # Not a flat face: a cluster with more of its points on one plane than a person has
             # scores less, down to flat_weight for a cluster all on one plane.
             flat = (1.0 - plane_share(cluster, cfg.flat_tolerance_m)) / (1.0 - cfg.flat_share)
-            score *= min(max(flat, cfg.flat_weight), 1.0)
-        if moving is not None:
-            score *= weight[lab]
-        if pulled[lab]:
-            score /= 1.0 + np.linalg.norm(c - last_center)
+            score = scored(min(max(flat, cfg.flat_weight), 1.0))
+        else:
+            score = scored(1.0)
         if score > best_score:
             best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score
     return best
