@@ -52,13 +52,17 @@ DEEP = 0.004
 #: Weight of the elbows' and wrists' displacement from the retargeter's pose against the
 #: residuals (m^2 per m^2): small, so the goals win and the displacement only picks, of the
 #: poses that meet them, the one nearest the retargeter's.
-DISPLACEMENT_WEIGHT = 0.02
+DISPLACEMENT_WEIGHT = 0.05
 #: Weight of the prior (the last frame's correction, let go) per unknown (per rad^2): with nothing
 #: to keep, the correction follows it out; and a step's largest rotation of arm and elbow (rad).
 _PRIOR = 0.005
 MAX_STEP = 0.25
 #: A step whose elbow and wrist move less than this (m) ends the frame's iterations.
 SETTLED_STEP = 0.003
+#: The most an elbow or a wrist is moved from the retargeter's pose (m): where the bounds conflict
+#: (forearms folded across a belly 10 cm deeper than the performer's, hands holding each other)
+#: the steps would otherwise wander off frame after frame.
+MAX_MOVE = 0.25
 #: The elbow's flexion bounds (rad, 0 = straight): never past straight, at most this bent.
 MIN_BEND = 0.05
 MAX_BEND = 2.6
@@ -232,6 +236,8 @@ class ContactKeeper:
                 lo, hi = p.bend0 - max(p.bend0, MAX_BEND), p.bend0 - min(p.bend0, MIN_BEND)
                 new[a, 3] = min(max(new[a, 3], lo), hi)
             limited = self._limited(arms, new, last, limit)
+            far = self._moves(arms, limited)
+            limited *= np.minimum(1.0, MAX_MOVE / np.maximum(far, 1e-12))[:, None]
             step = self._moves(arms, limited - state)
             held = self._moves(arms, new - limited) > 1e-6  # the rate limit held it back
             state = limited
