@@ -61,6 +61,17 @@ def plane_share(pts: np.ndarray, tolerance_m: float, max_points: int = 400, hypo
     return float(inliers.max()) / n
 
 
+def _score(base: float, flat: float, motion_weight: float | None, apart: float | None) -> float:
+    """A candidate's score: its size, height and top term times its flatness factor and motion
+    weight, over one plus its distance to the previous person (None: not applied)."""
+    out = base * flat
+    if motion_weight is not None:
+        out *= motion_weight
+    if apart is not None:
+        out /= apart
+    return out
+
+
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
                         last_center: np.ndarray | None, moving: np.ndarray | None = None,
                         cut_below: np.ndarray | None = None, cut_above: np.ndarray | None = None,
@@ -186,25 +197,18 @@ performer who moves (the tracked cluster's half threshold applies either way).""
             narrow = max(narrow, cfg.min_narrow_top)  # the top is out of view
         if narrow < (cfg.min_narrow_top / 2 if lab == tracked else cfg.min_narrow_top):
             continue  # flat-topped: furniture (this also rejects a person lying down)
-        score = counts[lab] * min(height, 1.8) ** 2 * narrow
-
-        def scored(flat: float) -> float:
-            out = score * flat
-            if moving is not None:
-                out *= weight[lab]
-            if pulled[lab]:
-                out /= 1.0 + np.linalg.norm(c - last_center)
-            return out
-
-        if scored(1.0) <= best_score:
+        base = counts[lab] * min(height, 1.8) ** 2 * narrow
+        moved = weight[lab] if moving is not None else None
+        apart = 1.0 + np.linalg.norm(c - last_center) if pulled[lab] else None
+        if _score(base, 1.0, moved, apart) <= best_score:
             continue  # it cannot win whatever its flatness (the plane count costs ~0.1 ms)
+        flat = 1.0
         if cfg.flat_share is not None:
             # Not a flat face: a cluster with more of its points on one plane than a person has
             # scores less, down to flat_weight for a cluster all on one plane.
             flat = (1.0 - plane_share(cluster, cfg.flat_tolerance_m)) / (1.0 - cfg.flat_share)
-            score = scored(min(max(flat, cfg.flat_weight), 1.0))
-        else:
-            score = scored(1.0)
+            flat = min(max(flat, cfg.flat_weight), 1.0)
+        score = _score(base, flat, moved, apart)
         if score > best_score:
             best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score
     return best
