@@ -218,8 +218,8 @@ class Fuser:
         self._heading_votes: list[float] = []
         self.interp_std, self.length_std, self.interp_prior = interp_std, length_std, interp_prior
         self._start_learning()
-        self.unsupported, self.interp_std, self.imu_std = unsupported, interp_std, imu_std
-        self.length_std, self.robust, self.learn_conf = length_std, robust, learn_conf
+        self.unsupported, self.imu_std = unsupported, imu_std
+        self.robust, self.learn_conf = robust, learn_conf
         self.gate, self.clear_frames, self.correlation = gate, clear_frames, correlation
         self.shape_rate, self.shape_start_s = shape_rate, 1.0
         self._rel_prev = np.zeros((NUM_JOINTS, 3))

@@ -8,7 +8,8 @@ front, or the camera sees past it). A limb the camera does not show where the su
 limb the depth skeleton can only guess.
 
 Pure numpy: points along each bone projected into the image, each tested against the pixels of
-a small window around it (the window's half-width is ``radius`` at the point's depth).
+a small window around it (the window's half-width is ``radius`` at the point's depth), all
+points' windows in one gather.
 """
 
 from __future__ import annotations
@@ -45,17 +46,21 @@ def seen_fraction(depth: DepthFrame, camera_to_world: np.ndarray, starts: np.nda
     half = np.clip(np.rint(radius * k[0, 0] / zs), 1, max_window_px).astype(np.int64)
     inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     seen = np.zeros(len(cam), bool)
-    for i in np.flatnonzero(inside):  # K * 5 points: a few dozen per frame
-        r = half[i]
-        v0, u0 = max(v[i] - r, 0), max(u[i] - r, 0)
-        window = img[v0:v[i] + r + 1, u0:u[i] + r + 1]
-        rows, cols = np.nonzero(window)
-        if not len(rows):
-            continue
-        zz = window[rows, cols] * 1e-3
-        dx = (cols + u0 - k[0, 2]) * zz / k[0, 0] - cam[i, 0]
-        dy = (rows + v0 - k[1, 2]) * zz / k[1, 1] - cam[i, 1]
-        seen[i] = bool(np.any(dx * dx + dy * dy + (zz - z[i]) ** 2 < radius * radius))
+    idx = np.flatnonzero(inside)
+    if len(idx):
+        # Every point's window at once: offsets up to the largest half-width, masked per point
+        # to its own half-width and to the image (a few dozen points x at most 25 x 25 pixels).
+        r = int(half[idx].max())
+        off = np.arange(-r, r + 1)
+        du, dv = np.meshgrid(off, off)
+        uu, vv = u[idx, None] + du.ravel(), v[idx, None] + dv.ravel()  # (N, W)
+        within = ((np.abs(du.ravel()) <= half[idx, None]) & (np.abs(dv.ravel()) <= half[idx, None])
+                  & (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h))
+        zz = img[np.clip(vv, 0, h - 1), np.clip(uu, 0, w - 1)] * 1e-3
+        dx = (uu - k[0, 2]) * zz / k[0, 0] - cam[idx, 0, None]
+        dy = (vv - k[1, 2]) * zz / k[1, 1] - cam[idx, 1, None]
+        near = dx * dx + dy * dy + (zz - z[idx, None]) ** 2 < radius * radius
+        seen[idx] = np.any(within & (zz > 0) & near, axis=1)
     return seen.reshape(len(starts), len(SAMPLE_FRACTIONS)).mean(axis=1)
 
 
