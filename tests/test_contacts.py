@@ -313,3 +313,19 @@ def test_a_hand_holding_the_other_forearm_takes_it_along_out_of_the_body():
     assert after.gap[(after.probe == hold[0]) & (after.region == torso)].min() > -0.003
     held = after.gap[(after.probe == hold[0]) & (after.region == hold[1])]
     assert len(held) and held.min() < 0.012
+
+
+def test_the_tuning_takes_share_no_subject_clip_or_body_with_the_held_out_ones():
+    from live.evaluation.contact_clips import CONTACT_TAKES, TUNING_TAKES
+    from live.evaluation.contacts import CONTACT_AVATARS, CONTACT_PERFORMER, TUNING_AVATARS, TUNING_PERFORMER
+    from sim.skeleton_data import VAL_SUBJECTS
+
+    def subject(clip: str) -> int | None:
+        parts = clip.split("_")
+        return int(parts[1]) if parts[0] in ("cc", "mb") else None
+
+    assert not {t[0] for t in TUNING_TAKES} & {t[0] for t in CONTACT_TAKES}
+    assert all(subject(t[0]) not in VAL_SUBJECTS for t in TUNING_TAKES)
+    assert not ({TUNING_PERFORMER, *TUNING_AVATARS} & {CONTACT_PERFORMER, *CONTACT_AVATARS})
+    for clip, _, _, _ in TUNING_TAKES:
+        assert (assets.bvh_dir() / clip).is_file()

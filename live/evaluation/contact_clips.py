@@ -171,6 +171,14 @@ CONTACT_TAKES = (("cc_007_04.bvh", 0, 150, "hands-on-hips"), ("mb_08_04.bvh", 0,
                  ("daz_salsa_10.bvh", 0, 200, None), ("daz_martial_05.bvh", 150, 200, None))
 
 
+#: Takes the correction's settings were chosen on (training subjects, none of them in
+#: CONTACT_TAKES): hands on hips and clapping made from subject 35's walks, hands on the belly
+#: curled in (subject 49), washing (subject 2), another salsa and another martial-arts take.
+TUNING_TAKES = (("mb_35_01.bvh", 0, 150, "hands-on-hips"), ("mb_35_09.bvh", 0, 150, "clapping"),
+                ("mb_49_11.bvh", 120, 180, None), ("cc_002_10.bvh", 0, 240, None),
+                ("daz_salsa_16.bvh", 0, 200, None), ("daz_martial_08.bvh", 0, 200, None))
+
+
 def take_motion(clip: str, start: int, frames: int, kind: str | None, body, bvh_dir=None):
     """A take of CONTACT_TAKES prepared at 30 fps on the performer's body (its arms made into a
     contact clip when ``kind`` says so)."""

@@ -253,6 +253,9 @@ def format_report(results: dict[str, Any] | list[dict[str, Any]]) -> str:
 #: The slimmest child and the heaviest adult of the body library; the performer, a held-out body.
 CONTACT_AVATARS = ("child_girl_6y", "tall_heavy_male")
 CONTACT_PERFORMER = "adult_male_average"
+#: The tuning runs' bodies (TUNING_TAKES): another child and another heavy adult, a training performer.
+TUNING_AVATARS = ("child_boy_4y", "heavy_male")
+TUNING_PERFORMER = "middle_aged_male"
 
 
 def contact_table(from_: str = "skeleton", *, takes=None, avatars=CONTACT_AVATARS,
@@ -305,7 +308,7 @@ def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return result
 
 
-if __name__ == "__main__":  # python -m live.evaluation.contacts [skeleton|depth]
+if __name__ == "__main__":  # python -m live.evaluation.contacts [skeleton|depth] [--tune]
     import argparse
     import json
     import sys
@@ -314,8 +317,16 @@ if __name__ == "__main__":  # python -m live.evaluation.contacts [skeleton|depth
                                   description="self-contacts kept and interpenetration on the held-out takes")
     cli.add_argument("which", nargs="?", default="skeleton", choices=["skeleton", "depth"])
     cli.add_argument("--json", type=Path, default=None, help="also write the results here")
+    cli.add_argument("--tune", action="store_true",
+                     help="the tuning takes and bodies the settings were chosen on, not the held-out ones")
     a = cli.parse_args()
-    table = contact_table(a.which, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    if a.tune:
+        from live.evaluation.contact_clips import TUNING_TAKES
+
+        table = contact_table(a.which, takes=TUNING_TAKES, avatars=TUNING_AVATARS, performer=TUNING_PERFORMER,
+                              progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    else:
+        table = contact_table(a.which, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_report(table))
     if a.json is not None:
         a.json.write_text(json.dumps(table, indent=1))
