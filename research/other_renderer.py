@@ -385,6 +385,8 @@ def main(argv: list[str] | None = None) -> dict:
                     help="which cases (0: the reported ones; others for tuning: other clips, rooms, cameras)")
     ap.add_argument("--models", type=Path, nargs="+", default=None,
                     help="skeleton models (default: the shipped one and .cache/skeleton_ft2_f873253.onnx if present)")
+    ap.add_argument("--temporal", type=Path, nargs="+", default=[],
+                    help="other temporal models (.onnx) also run behind the first skeleton model, as more rows")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=DEFAULT_FIGURE)
     ap.add_argument("--replay-check", type=int, default=1, help="cases also run through `livecap replay`")
@@ -400,16 +402,18 @@ def main(argv: list[str] | None = None) -> dict:
     per_case: dict = {}
     checks: dict = {}
     for model in models:
-        for variant, options in (("stage", {}), ("per-frame", {"temporal": False, "filter": False})):
+        variants = [("stage", model.name, {}), ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
+        if model == models[0]:
+            variants += [("stage", f"{model.name} + {t.parent.name}/{t.name}", {"temporal": t}) for t in args.temporal]
+        for variant, label, options in variants:
             solved = [solve(folder_frames(folder), data["joints"], data["camera_to_world"], model, **options)
                       for data, folder in rendered]
-            label = model.name if variant == "stage" else f"{model.name} per-frame"
             solved_by[label] = solved
             results[label] = summarise(cases, solved) if variant == "stage" else {"all": summarise(cases, solved)["all"]}
             per_case[label] = {c.name: score(s["pred"], s["gt"], s["up_error_deg"]) for c, s in zip(cases, solved)}
         for case, (_, folder), s in list(zip(cases, rendered, solved_by[model.name]))[:args.replay_check]:
             checks[f"{model.name} {case.name}"] = replay_check(folder, model, s["pred"])
-    stage_labels = [m.name for m in models]
+    stage_labels = [m.name for m in models] + [f"{models[0].name} + {t.parent.name}/{t.name}" for t in args.temporal]
     print(table(results, stage_labels))
     print(table({k: v for k, v in results.items() if k not in stage_labels}, [f"{m} per-frame" for m in stage_labels]))
     for name, diff in checks.items():
