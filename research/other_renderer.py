@@ -415,7 +415,7 @@ def main(argv: list[str] | None = None) -> dict:
             checks[f"{model.name} {case.name}"] = replay_check(folder, model, s["pred"])
     stage_labels = [m.name for m in models] + [f"{models[0].name} + {t.parent.name}/{t.name}" for t in args.temporal]
     print(table(results, stage_labels))
-    print(table({k: v for k, v in results.items() if k not in stage_labels}, [f"{m} per-frame" for m in stage_labels]))
+    print(table({k: v for k, v in results.items() if k not in stage_labels}, [f"{m.name} per-frame" for m in models]))
     for name, diff in checks.items():
         print(f"livecap replay vs in-process stage, {name}: max |diff| {diff * 1000:.4f} mm")
     shipped = solved_by[models[0].name]
