@@ -162,3 +162,25 @@ def test_unknown_lag_is_a_user_error():
         SkeletonStage(lag=7)
     with pytest.raises(UserInputError, match="needs the temporal model"):
         SkeletonStage(temporal=False, lag=2)
+
+
+def test_online_model_restarts_its_history_when_it_strays_from_the_frame():
+    from live.body.library import load_body
+    from models.skeleton.temporal import RESTART_DEVIATION_M, TemporalRefiner
+
+    rest = np.asarray(load_body("adult_male_average").rest_joints, np.float64)
+    rest = rest - rest[0] * np.array([1.0, 0.0, 1.0])  # the pelvis above the person frame's origin
+    turned = rest @ np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).T  # a quarter turn
+    refiner, to_world, conf = TemporalRefiner(), np.eye(4), np.ones(22)
+    t = 1_000_000_000 + np.round(np.arange(24) * 1e9 / 30).astype(np.int64)
+    for k in range(20):  # standing still: the model agrees with the frames
+        out = refiner(int(t[k]), rest, conf, to_world)
+        assert np.linalg.norm(out.joints - rest, axis=1).mean() < RESTART_DEVIATION_M
+    assert refiner.restarts == 0
+    # Turned a quarter in 33 ms: the history cannot explain it; the frame's own estimate is given.
+    out = refiner(int(t[20]), turned, conf, to_world)
+    assert refiner.restarts == 1 and np.array_equal(out.joints, turned)
+    for k in range(21, 24):  # and the model follows from there
+        out = refiner(int(t[k]), turned, conf, to_world)
+        assert np.linalg.norm(out.joints - turned, axis=1).mean() < RESTART_DEVIATION_M
+    assert refiner.restarts == 1

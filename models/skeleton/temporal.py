@@ -34,6 +34,11 @@ from live.core.skeleton import NUM_JOINTS
 
 WEIGHTS_DIR = assets.weights_dir()
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
+#: When the online model's estimate of a frame lies farther than this (m, mean over joints) from
+#: the frame's own per-frame estimate, the frame's estimate is given and the history restarts from
+#: it. Chosen on the other renderer's tuning cases (seed 1) and our own validation sequences
+#: (docs/skeleton.md, "Temporal model"): the PCK threshold, beyond which neither counts as right.
+RESTART_DEVIATION_M = 0.10
 
 
 def temporal_model_path(lag: int = 0, regressor_path: Path | None = None) -> Path:
@@ -129,6 +134,7 @@ class TemporalRefiner:
             raise ModelError(f"{self.path.name}: expected one (B, {feature_size(self.window)}) input, "
                              f"got {[i.shape for i in inputs]}")
         self._input = inputs[0].name
+        self.restarts = 0  # histories dropped because the model strayed from the frame (RESTART_DEVIATION_M)
         self.reset()
 
     @property
@@ -189,7 +195,17 @@ class TemporalRefiner:
         k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
-        return self._estimate(k)
+        out = self._estimate(k)
+        raw = self._joints[self._start + k]
+        if self.lag == 0 and np.linalg.norm(out.joints - raw, axis=1).mean() > RESTART_DEVIATION_M:
+            # The online model strays from what this frame shows: its history no longer explains
+            # the present (depth unlike its training data, a jump). The frame's own estimate is
+            # given, and the history starts again from this frame. (A lagging model sees the
+            # frames after it too, and strays for good reason: restarting it only costs.)
+            self.restarts += 1
+            self._start += k
+            out = RefinedSkeleton(t_ns=out.t_ns, joints=raw.copy(), confidence=out.confidence)
+        return out
 
     def flush(self) -> list[RefinedSkeleton]:
         """At the end of a stream, the frames a lagging model still owes (the last ``lag``; none
