@@ -16,6 +16,15 @@ import numpy as np
 _EPS = 1e-12
 
 
+def skew(v: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 3, 3) cross-product matrices: skew(a) @ b = a x b."""
+    v = np.asarray(v, np.float64)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
 def quat_identity(shape: tuple[int, ...] = (), dtype=np.float64) -> np.ndarray:
     q = np.zeros(shape + (4,), dtype=dtype)
     q[..., 0] = 1.0

@@ -26,18 +26,9 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.heading import wrap_angle, yaw_quat
-from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_rotate, quat_to_matrix
+from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_rotate, quat_to_matrix, skew
 
 UP = np.array([0.0, 1.0, 0.0])
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 3, 3) cross-product matrices: skew(a) @ b = a x b."""
-    v = np.asarray(v, np.float64)
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
 
 
 class HeadingFilter:

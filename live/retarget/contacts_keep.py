@@ -39,6 +39,7 @@ import math
 import numpy as np
 
 from live.core import vec3 as v3
+from live.core.rotations import skew
 from live.core.skeleton import PARENTS
 from live.retarget.analytic import LIMBS
 from live.retarget.contacts_self import ContactSettings, SourceContacts
@@ -309,11 +310,12 @@ class ContactKeeper:
             jac[theirs] += sub
         # The elbows' and wrists' displacement from the retargeter's pose and its Jacobian.
         disp, jd = np.zeros(12), np.zeros((12, 8))
+        levers = skew(np.array([v3.sub(joint, p.s) for p, q in zip(arms, posed) for joint in q[2:4]]))
         for a, (p, (_, _, elbow, wrist, n_a)) in enumerate(zip(arms, posed)):
             disp[6 * a:6 * a + 3] = v3.sub(elbow, p.e0)
             disp[6 * a + 3:6 * a + 6] = v3.sub(wrist, p.w0)
-            jd[6 * a:6 * a + 3, 4 * a:4 * a + 3] = -_skew(v3.sub(elbow, p.s))
-            jd[6 * a + 3:6 * a + 6, 4 * a:4 * a + 3] = -_skew(v3.sub(wrist, p.s))
+            jd[6 * a:6 * a + 3, 4 * a:4 * a + 3] = -levers[2 * a]
+            jd[6 * a + 3:6 * a + 6, 4 * a:4 * a + 3] = -levers[2 * a + 1]
             jd[6 * a + 3:6 * a + 6, 4 * a + 3] = v3.cross(n_a, v3.sub(wrist, elbow))
         lam = DISPLACEMENT_WEIGHT
         base_h = lam * (jd.T @ jd) + (_PRIOR + STEP_DAMPING) * np.eye(8)
@@ -387,10 +389,6 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross products of (K, 3) arrays (np.cross costs ten times more on a few rows)."""
     return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
                      a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
-
-
-def _skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
