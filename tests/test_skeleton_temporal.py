@@ -177,10 +177,13 @@ def test_online_model_restarts_its_history_when_it_strays_from_the_frame():
         out = refiner(int(t[k]), rest, conf, to_world)
         assert np.linalg.norm(out.joints - rest, axis=1).mean() < RESTART_DEVIATION_M
     assert refiner.restarts == 0
-    # Turned a quarter in 33 ms: the history cannot explain it; the frame's own estimate is given.
+    # Turned a quarter in 33 ms: the history cannot explain it. One frame may be a fast move the
+    # model catches up with; on the second the frame's own estimate is given.
     out = refiner(int(t[20]), turned, conf, to_world)
+    assert refiner.restarts == 0 and np.linalg.norm(out.joints - turned, axis=1).mean() > RESTART_DEVIATION_M
+    out = refiner(int(t[21]), turned, conf, to_world)
     assert refiner.restarts == 1 and np.array_equal(out.joints, turned)
-    for k in range(21, 24):  # and the model follows from there
+    for k in range(22, 24):  # and the model follows from there
         out = refiner(int(t[k]), turned, conf, to_world)
         assert np.linalg.norm(out.joints - turned, axis=1).mean() < RESTART_DEVIATION_M
     assert refiner.restarts == 1

@@ -34,11 +34,14 @@ from live.core.skeleton import NUM_JOINTS
 
 WEIGHTS_DIR = assets.weights_dir()
 DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
-#: When the online model's estimate of a frame lies farther than this (m, mean over joints) from
-#: the frame's own per-frame estimate, the frame's estimate is given and the history restarts from
-#: it. Chosen on the other renderer's tuning cases (seed 1) and our own validation sequences
-#: (docs/skeleton.md, "Temporal model"): the PCK threshold, beyond which neither counts as right.
+#: When the online model's estimate lies farther than RESTART_DEVIATION_M (m, mean over joints)
+#: from the frame's own per-frame estimate on RESTART_FRAMES frames in a row, that frame's estimate
+#: is given and the history restarts from it. Chosen on the other renderer's tuning cases (seed 1),
+#: our own validation sequences and the retarget chain (docs/skeleton.md, "Temporal model"): the
+#: PCK threshold, beyond which neither counts as right; one frame is a fast move the model is
+#: still catching up with (restarting there made the avatar's jitter 40 % worse).
 RESTART_DEVIATION_M = 0.10
+RESTART_FRAMES = 2
 
 
 def temporal_model_path(lag: int = 0, regressor_path: Path | None = None) -> Path:
@@ -153,6 +156,7 @@ class TemporalRefiner:
         self._start = self._end = 0
         self._emitted: int | None = None
         self._to_world: np.ndarray | None = None
+        self._straying = 0
 
     def _append(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray) -> None:
         """Add an observation; drop what the window can no longer reach (all but one entry older
@@ -197,9 +201,12 @@ class TemporalRefiner:
             return None
         out = self._estimate(k)
         raw = self._joints[self._start + k]
-        if self.lag == 0 and np.linalg.norm(out.joints - raw, axis=1).mean() > RESTART_DEVIATION_M:
-            # The online model strays from what this frame shows: its history no longer explains
-            # the present (depth unlike its training data, a jump). The frame's own estimate is
+        strays = self.lag == 0 and np.linalg.norm(out.joints - raw, axis=1).mean() > RESTART_DEVIATION_M
+        self._straying = self._straying + 1 if strays else 0
+        if self._straying >= RESTART_FRAMES:
+            self._straying = 0
+            # The online model keeps straying from what the frames show: its history no longer
+            # explains the present (depth unlike its training data). The frame's own estimate is
             # given, and the history starts again from this frame. (A lagging model sees the
             # frames after it too, and strays for good reason: restarting it only costs.)
             self.restarts += 1
