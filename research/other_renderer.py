@@ -1,7 +1,8 @@
 """Depth from another renderer: the skeleton stage judged on depth it did not make.
 
     python -m research.other_renderer [--cases 32] [--frames 16] [--seed 0] [--models A.onnx ...]
-        [--json FILE] [--figure docs/img/other_renderer.png] [--replay-check 1]
+        [--lag 2] [--temporal T.onnx ...] [--json FILE] [--figure docs/img/other_renderer.png]
+        [--replay-check 1]
 
 Held-out content only: CMU clips of the held-out subjects and the held-out bodies
 (sim.skeleton_data's "val" split), posed with the product's own posing and skinning
@@ -291,14 +292,14 @@ def summarise(cases: list[Case], solved: list[dict]) -> dict:
     return out
 
 
-def replay_check(folder: Path, model: Path, pred: np.ndarray) -> float:
-    """Max |joint difference| (m) between ``livecap replay FOLDER --model M`` and the in-process
-    stage on the frames both solved (the public command runs the same stage)."""
+def replay_check(folder: Path, model: Path, pred: np.ndarray, lag: int = 0) -> float:
+    """Max |joint difference| (m) between ``livecap replay FOLDER --model M [--lag L]`` and the
+    in-process stage on the frames both solved (the public command runs the same stage)."""
     from live.io.results import read_skeleton
 
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [str(Path(sys.executable).with_name("livecap")), "replay", str(folder), "--out", tmp,
-               "--model", str(model), "--quiet"]
+               "--model", str(model), "--quiet"] + (["--lag", str(lag)] if lag else [])
         subprocess.run(cmd, check=True, capture_output=True, timeout=600)
         res = read_skeleton(Path(tmp) / "skeleton.npz")
     period = 1e9 / FPS
@@ -385,6 +386,7 @@ def main(argv: list[str] | None = None) -> dict:
                     help="which cases (0: the reported ones; others for tuning: other clips, rooms, cameras)")
     ap.add_argument("--models", type=Path, nargs="+", default=None,
                     help="skeleton models (default: the shipped one and .cache/skeleton_ft2_f873253.onnx if present)")
+    ap.add_argument("--lag", type=int, default=0, help="the stage's temporal model of this lag (0: online)")
     ap.add_argument("--temporal", type=Path, nargs="+", default=[],
                     help="other temporal models (.onnx) also run behind the first skeleton model, as more rows")
     ap.add_argument("--json", type=Path, default=None)
@@ -402,7 +404,8 @@ def main(argv: list[str] | None = None) -> dict:
     per_case: dict = {}
     checks: dict = {}
     for model in models:
-        variants = [("stage", model.name, {}), ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
+        variants = [("stage", model.name, {"lag": args.lag} if args.lag else {}),
+                    ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
         if model == models[0]:
             variants += [("stage", f"{model.name} + {t.parent.name}/{t.name}", {"temporal": t}) for t in args.temporal]
         for variant, label, options in variants:
@@ -412,7 +415,7 @@ def main(argv: list[str] | None = None) -> dict:
             results[label] = summarise(cases, solved) if variant == "stage" else {"all": summarise(cases, solved)["all"]}
             per_case[label] = {c.name: score(s["pred"], s["gt"], s["up_error_deg"]) for c, s in zip(cases, solved)}
         for case, (_, folder), s in list(zip(cases, rendered, solved_by[model.name]))[:args.replay_check]:
-            checks[f"{model.name} {case.name}"] = replay_check(folder, model, s["pred"])
+            checks[f"{model.name} {case.name}"] = replay_check(folder, model, s["pred"], args.lag)
     stage_labels = [m.name for m in models] + [f"{models[0].name} + {t.parent.name}/{t.name}" for t in args.temporal]
     print(table(results, stage_labels))
     print(table({k: v for k, v in results.items() if k not in stage_labels}, [f"{m.name} per-frame" for m in models]))
