@@ -403,11 +403,13 @@ def main(argv: list[str] | None = None) -> dict:
     solved_by: dict = {}
     per_case: dict = {}
     checks: dict = {}
+    stage_labels: list[str] = []
     for model in models:
         variants = [("stage", model.name, {"lag": args.lag} if args.lag else {}),
                     ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
         if model == models[0]:
             variants += [("stage", f"{model.name} + {t.parent.name}/{t.name}", {"temporal": t}) for t in args.temporal]
+        stage_labels += [label for variant, label, _ in variants if variant == "stage"]
         for variant, label, options in variants:
             solved = [solve(folder_frames(folder), data["joints"], data["camera_to_world"], model, **options)
                       for data, folder in rendered]
@@ -416,7 +418,6 @@ def main(argv: list[str] | None = None) -> dict:
             per_case[label] = {c.name: score(s["pred"], s["gt"], s["up_error_deg"]) for c, s in zip(cases, solved)}
         for case, (_, folder), s in list(zip(cases, rendered, solved_by[model.name]))[:args.replay_check]:
             checks[f"{model.name} {case.name}"] = replay_check(folder, model, s["pred"], args.lag)
-    stage_labels = [m.name for m in models] + [f"{models[0].name} + {t.parent.name}/{t.name}" for t in args.temporal]
     print(table(results, stage_labels))
     print(table({k: v for k, v in results.items() if k not in stage_labels}, [f"{m.name} per-frame" for m in models]))
     for name, diff in checks.items():

@@ -320,13 +320,10 @@ if __name__ == "__main__":  # python -m live.evaluation.contacts [skeleton|depth
     cli.add_argument("--tune", action="store_true",
                      help="the tuning takes and bodies the settings were chosen on, not the held-out ones")
     a = cli.parse_args()
-    if a.tune:
-        from live.evaluation.contact_clips import TUNING_TAKES
+    from live.evaluation.contact_clips import TUNING_TAKES
 
-        table = contact_table(a.which, takes=TUNING_TAKES, avatars=TUNING_AVATARS, performer=TUNING_PERFORMER,
-                              progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    else:
-        table = contact_table(a.which, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    runs = dict(takes=TUNING_TAKES, avatars=TUNING_AVATARS, performer=TUNING_PERFORMER) if a.tune else {}
+    table = contact_table(a.which, progress=lambda msg: print(msg, file=sys.stderr, flush=True), **runs)
     print(format_report(table))
     if a.json is not None:
         a.json.write_text(json.dumps(table, indent=1))

@@ -144,8 +144,8 @@ class SkeletonStage:
     def counters(self) -> dict[str, int]:
         out = asdict(self._counters)
         out["flips"] = self.flips.flips
-        out["temporal_restarts"] = 0 if self.temporal is None else self.temporal.restarts
         out["flip_recoveries"] = self.flips.recoveries
+        out["temporal_restarts"] = 0 if self.temporal is None else self.temporal.restarts
         out.update({f"finder_{k}": v for k, v in asdict(self.finder.counters).items()})
         return out
 
