@@ -17,8 +17,8 @@ angle-weighted vertex normals interpolated there on an edge or a vertex; negativ
 the closest point lies on the part's open edge (the cut to a neighbouring part) the distance
 counts as outside: that side is the neighbour's, which covers it.
 
-``PROBE_COUNT`` probe points are spread over the convex hull of each hand and forearm by
-farthest-point sampling; they are posed by skinning, like the mesh.
+``PROBE_COUNT`` probe points are spread by farthest-point sampling over each forearm's skin and
+each hand's convex hull; they are posed by skinning, like the mesh.
 
 A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
 parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
@@ -56,7 +56,7 @@ PROBE_COUNT = 48
 #: rigid broad phase allows for it.
 SKIN_SLACK = 0.08
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
-MODEL_VERSION = 6
+MODEL_VERSION = 7
 
 
 @dataclass(frozen=True)
@@ -422,14 +422,19 @@ def _part_grid(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarray, ori
     return lo - origin, dims, data, nearest.astype(np.int32)
 
 
-def _probe_vertices(vertices: np.ndarray, members: np.ndarray) -> np.ndarray:
-    """PROBE_COUNT of a hand's or forearm's vertices: its convex hull's first (what sinks deepest
-    into a surface is on the hull: sampled evenly over the whole skin, 32 probes missed a hand's
-    deepest point by 7 mm on average), spread by farthest-point sampling; then, when the hull has
-    too few, the other vertices, farthest from the hull's first."""
+def _probe_vertices(vertices: np.ndarray, members: np.ndarray, kind: str) -> np.ndarray:
+    """PROBE_COUNT of a hand's or forearm's vertices, spread by farthest-point sampling. A
+    forearm's over its whole skin: its rest pose's hull leaves the flat inner side, which a bent
+    elbow and a belly press on, without probes (a forearm 12 mm inside a child's belly 37 mm from
+    its nearest hull probe measured 2 mm outside). A hand's over its convex hull first (what sinks
+    deepest is on the hull: sampled evenly over the whole skin, fingers and all, 32 probes missed
+    a hand's deepest point by 7 mm on average); then, when the hull has too few, the other
+    vertices, farthest from the hull's first."""
     from scipy.spatial import ConvexHull, QhullError
 
     pts = vertices[members]
+    if kind == "forearm":
+        return np.resize(members[_farthest_points(pts, PROBE_COUNT)], PROBE_COUNT)
     try:
         hull = np.unique(ConvexHull(pts).vertices)
     except (QhullError, ValueError):
@@ -484,7 +489,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         members = np.flatnonzero(dominant == JOINT_INDEX[spec.joint])
         if len(members) < 4:
             raise UserInputError(f"the avatar mesh has no skin weighted to its {spec.joint}")
-        probes.append(_probe_vertices(vertices, members))
+        probes.append(_probe_vertices(vertices, members, spec.kind))
     # Each vertex's four heaviest joints, renormalised: skinning a few vertices per frame.
     heavy = np.argsort(-weights, axis=1, kind="stable")[:, :4]
     heavy_w = np.take_along_axis(weights, heavy, axis=1)
