@@ -163,6 +163,8 @@ class ContactKeeper:
         self._reach = np.where(_PROBE_HAND, max(s.reach, s.clearance), s.reach) + s.margin
         self._floor_cap = np.where(_PROBE_HAND, max(s.clearance, s.margin), s.margin)
         self._contact_weight = np.where(_PROBE_HAND, 1.0, FOREARM_CONTACT_WEIGHT)
+        #: The probe sets whose performer contacts count (the others' bounds do not depend on them).
+        self.held_probes = np.flatnonzero(self._contact_weight > 0.0)
 
     def bounds(self, gaps: Gaps, source: SourceContacts) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per row: the least gap (m) it may have, the most (inf but for a kept contact) and the

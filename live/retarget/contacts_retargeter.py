@@ -72,9 +72,11 @@ class ContactRetargeter:
         self.performer = performer
         self.dt = frame_interval_s(fps)
         self.clock = FrameClock()
-        self.detector = SelfContactDetector(settings)
         target_rest = np.asarray(target_rest, np.float64)
         self.keeper = ContactKeeper(RestInfo.of(target_rest).offsets, settings)
+        # Only the performer's contacts the keeper holds are measured (not the forearms': their
+        # contacts weigh nothing, forearms are only kept out of the avatar's body).
+        self.detector = SelfContactDetector(settings, self.keeper.held_probes)
         self.set_source_rest(source_rest)
         self.reset()
 

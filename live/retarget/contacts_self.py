@@ -56,11 +56,13 @@ class SourceContacts:
                 if PROBES[i].kind == "hand"]
 
 
-def measure_gaps(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, settings: ContactSettings) -> np.ndarray:
-    """(PROBES, REGIONS) gaps of every probe set to every region it is tested against in a pose
-    (glob (22, 3, 3), pos (22, 3)); FAR_GAP for regions beyond the broad phase's reach."""
+def measure_gaps(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, settings: ContactSettings,
+                 probes: np.ndarray | None = None) -> np.ndarray:
+    """(PROBES, REGIONS) gaps of the probe sets ``probes`` (default all) to every region they are
+    tested against in a pose (glob (22, 3, 3), pos (22, 3)); FAR_GAP for regions beyond the broad
+    phase's reach and for the probe sets not measured."""
     gaps = np.full((len(PROBES), len(REGIONS)), FAR_GAP)
-    found = measure(surface, glob, pos, _ALL, settings.reach, settings.tau)
+    found = measure(surface, glob, pos, _ALL if probes is None else probes, settings.reach, settings.tau)
     gaps[found.probe, found.region] = found.gap
     return gaps
 
@@ -69,10 +71,12 @@ _ALL = np.arange(len(PROBES))
 
 
 class SelfContactDetector:
-    """Online self-contacts of the performer with hysteresis and ramped weights."""
+    """Online self-contacts of the performer with hysteresis and ramped weights; ``probes``: the
+    probe sets whose contacts are wanted (default all; the others never touch)."""
 
-    def __init__(self, settings: ContactSettings = ContactSettings()):
+    def __init__(self, settings: ContactSettings = ContactSettings(), probes: np.ndarray | None = None):
         self.settings = settings
+        self.probes = None if probes is None else np.asarray(probes, np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -83,7 +87,7 @@ class SelfContactDetector:
     def update(self, surface: BodySurface, glob: np.ndarray, pos: np.ndarray, dt: float) -> SourceContacts:
         """One frame of the performer: its surface, global rotations (22, 3, 3) and joints (22, 3);
         dt seconds since the frame before."""
-        return self.step(measure_gaps(surface, glob, pos, self.settings), dt)
+        return self.step(measure_gaps(surface, glob, pos, self.settings, self.probes), dt)
 
     def step(self, gap: np.ndarray, dt: float) -> SourceContacts:
         """One frame's gaps (PROBES, REGIONS) through the hysteresis and the weights' ramps."""
