@@ -324,3 +324,49 @@ def test_the_tuning_takes_share_no_subject_clip_or_body_with_the_held_out_ones()
     assert {t[0] for t in TUNING_TAKES} <= training  # on disk, and no held-out subject
     assert not {t[0] for t in TUNING_TAKES} & {t[0] for t in CONTACT_TAKES}
     assert not ({TUNING_PERFORMER, *TUNING_AVATARS} & {CONTACT_PERFORMER, *CONTACT_AVATARS})
+
+
+def test_a_carried_correction_that_drags_an_arm_into_the_body_is_dropped():
+    """An arm corrected on the frames before, now where that correction would hold it deep inside
+    the belly while the retargeter's own pose is outside: the arm starts again from that pose
+    rather than being rate-limited out of the body over many frames."""
+    from live.core.kinematics import forward_kinematics_matrices, local_matrices
+    from live.retarget.analytic import RestInfo, solve_globals
+    from live.retarget.contacts_keep import _ARM_PROBES, ARMS, ContactKeeper, _Posed
+    from live.retarget.contacts_self import SourceContacts
+
+    body = load_body("tall_heavy_male")
+    surface = body_surface(body)
+    rest = np.asarray(body.rest_joints, np.float64)
+    info = RestInfo.of(rest)
+    j = JOINT_INDEX
+    # Arms hanging down beside the body, clear of it.
+    pose = rest.copy()
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
+        pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
+    glob = solve_globals(pose[None], info)[0][0]
+    pos, glob = (a[0] for a in forward_kinematics_matrices(local_matrices(glob)[None], pose[None, 0], info.offsets))
+    nothing = np.zeros((len(PROBES), len(REGIONS)))
+    source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
+    clear = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+    assert not len(clear.gap) or clear.gap.min() > 0.0
+
+    def depth_of_left(state):
+        g, p = glob.copy(), pos.copy()
+        ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
+        gaps = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
+        return -gaps.gap.min() if len(gaps.gap) else 0.0
+
+    # A carried correction that swings the left arm in across the belly, 5 cm or more deep.
+    deep = next(s for s in (np.array([[0.0, 0.0, -a, 0.0], [0.0] * 4]) for a in np.linspace(0.2, 1.4, 25))
+                if depth_of_left(s) > 0.05)
+    keeper = ContactKeeper(info.offsets)
+    keeper(surface, glob.copy(), local_matrices(glob), pos.copy(), source, 1 / 30)  # a first frame: nothing near
+    keeper.state = deep.copy()
+    keeper.state[:, :3] = deep[:, :3] @ glob[0]  # kept in the pelvis frame
+    keeper._seen = True
+    g, p = glob.copy(), pos.copy()
+    keeper(surface, g, local_matrices(glob), p, source, 1 / 30)
+    after = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
+    assert not len(after.gap) or after.gap.min() > -0.005

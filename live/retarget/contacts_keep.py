@@ -28,8 +28,9 @@ After any retargeter (rotation copy or the network), on the avatar's own surface
    inside). The correction's change is rate-limited: its elbows and wrists move at most
    MAX_HAND_SPEED plus INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while
    the hand is still (a contact starting, a hand slipping between thigh and belly) are followed
-   smoothly, and a hand that strikes or claps fast is still pushed out. A frame with nothing
-   near is left exactly as the retargeter made it.
+   smoothly, and a hand that strikes or claps fast is still pushed out. An arm that the carried
+   correction holds deep inside the body, deeper than the retargeter's own pose would be, starts
+   again from that pose. A frame with nothing near is left exactly as the retargeter made it.
 """
 
 from __future__ import annotations
@@ -90,6 +91,12 @@ HOLD_REACH = 0.15
 NEAR = 0.01
 #: Weight of the rows that push out of the body against those that pull toward a contact.
 PUSH_WEIGHT = 3.0
+#: An arm whose carried correction holds it more than RESTART_DEPTH (m) inside the body, and
+#: RESTART_GAIN (m) deeper than the retargeter's own pose would be, starts again from that pose:
+#: arms swinging out of a heavy belly otherwise drag the correction through it (on the tuning
+#: takes penetration 5.1 -> 4.7 mm mean, 63 -> 60 max, MPJPE and acceleration a little lower).
+RESTART_DEPTH = 0.02
+RESTART_GAIN = 0.005
 
 
 class _Arm:
@@ -116,6 +123,7 @@ _PROBE_HAND = np.array([p.kind == "hand" for p in PROBES])
 _REGION_ARM = np.array([0 if r.startswith("left_") and r[5:] in ("hand", "arm") else
                         1 if r.startswith("right_") and r[6:] in ("hand", "arm") else -1 for r in REGIONS])
 _REGION_HAND = np.array([r.endswith("_hand") for r in REGIONS])
+_ARM_PROBES = (np.flatnonzero(_PROBE_ARM == 0), np.flatnonzero(_PROBE_ARM == 1))
 
 
 class _Posed:
@@ -229,7 +237,9 @@ class ContactKeeper:
         state = last.copy()
         if state.any():
             self._apply(glob, loc, pos, arms, state)
-            gaps = None  # measured again where the arms now are
+            gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
+            if RESTART_DEPTH > 0:
+                gaps = self._drop_worse(surface, glob, loc, pos, arms, state, last, gaps, reach, band)
         res, seen = np.zeros(0), Gaps.empty()
         for iteration in range(_DEEP_ITERATIONS):
             if gaps is None:
@@ -269,6 +279,32 @@ class ContactKeeper:
             if state[a].any():
                 changed.update(arm.joints)
         return changed
+
+    def _drop_worse(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
+                    arms: list[_Posed], state: np.ndarray, last: np.ndarray, gaps: Gaps, reach: np.ndarray,
+                    band: np.ndarray) -> Gaps | None:
+        """An arm whose carried correction holds it more than RESTART_DEPTH inside the body, deeper
+        by RESTART_GAIN than the retargeter's own pose would be, starts again from that pose
+        (``state`` and ``last`` changed in place; None: to be measured again). Arms that swing
+        out of a belly otherwise drag the correction of the frames before through it."""
+        dropped = False
+        for a in range(2):
+            if not state[a].any():
+                continue
+            mine = _PROBE_ARM[gaps.probe] == a
+            deep = float(gaps.gap[mine].min()) if mine.any() else 0.0
+            if deep > -RESTART_DEPTH:
+                continue
+            trial = state.copy()
+            trial[a] = 0.0
+            self._apply(glob, loc, pos, arms, trial)
+            probes = _ARM_PROBES[a]
+            base = measure(surface, glob, pos, probes, reach[probes], self.settings.tau, band[probes])
+            if (float(base.gap.min()) if len(base.gap) else 0.0) > deep + RESTART_GAIN:
+                state[a] = last[a] = 0.0
+                dropped = True
+            self._apply(glob, loc, pos, arms, state)
+        return None if dropped else gaps
 
     # ------------------------------------------------------------------------------ the solve
 
