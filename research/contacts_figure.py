@@ -113,7 +113,7 @@ def contacts_figure(out: Path = OUT) -> Path:
                 tiles.append(_render(avatar, verts.astype(np.float64), yaw, pred[frame, JOINT_INDEX["spine2"]],
                                      [f"{name.replace('_', ' ')}, {label}",
                                       f"hands {100 * g[0, 0, col]:.1f} / {100 * g[0, 1, col]:.1f} cm",
-                                      f"sunk in {1000 * d[0].max():.0f} mm"]))
+                                      f"sunk in {max(1000 * d[0].max(), 0.0):.0f} mm"]))
         rows.append(np.hstack(tiles))
     out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(out), np.vstack(rows))
