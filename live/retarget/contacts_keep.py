@@ -94,7 +94,7 @@ PUSH_WEIGHT = 3.0
 #: An arm whose carried correction holds it more than RESTART_DEPTH (m) inside the body, and
 #: RESTART_GAIN (m) deeper than the retargeter's own pose would be, starts again from that pose:
 #: arms swinging out of a heavy belly otherwise drag the correction through it (on the tuning
-#: takes penetration 5.1 -> 4.7 mm mean, 63 -> 60 max, MPJPE and acceleration a little lower).
+#: takes penetration 5.1 -> 4.6 mm mean, 63 -> 60 max, MPJPE and acceleration a little lower).
 RESTART_DEPTH = 0.02
 RESTART_GAIN = 0.005
 
