@@ -276,27 +276,37 @@ def test_the_rigid_broad_phase_never_drops_a_pair_the_skinned_one_measures():
     assert 0 < skipped < 40  # some frames have nothing near, some do
 
 
+def _heavy_avatar_posed(place_arms):
+    """The heaviest avatar's surface, rest info and pose (globals (22, 3, 3), joints (22, 3)) with
+    its arm joints where ``place_arms(pose)`` puts them in a copy of the rest joints."""
+    from live.core.kinematics import forward_kinematics_matrices, local_matrices
+    from live.retarget.analytic import RestInfo, solve_globals
+
+    body = load_body("tall_heavy_male")
+    rest = np.asarray(body.rest_joints, np.float64)
+    info = RestInfo.of(rest)
+    pose = rest.copy()
+    place_arms(pose)
+    glob = solve_globals(pose[None], info)[0][0]
+    pos, glob = (a[0] for a in forward_kinematics_matrices(local_matrices(glob)[None], pose[None, 0], info.offsets))
+    return body_surface(body), info, glob, pos
+
+
 def test_a_hand_holding_the_other_forearm_takes_it_along_out_of_the_body():
     """Both arms are one system: the left hand holds the right forearm, both sunk into the heavy
     avatar's belly; pushed out, the hand stays on the forearm (on the avatar's own surface)."""
-    from live.core.kinematics import forward_kinematics_matrices, local_matrices
-    from live.retarget.analytic import RestInfo, solve_globals
+    from live.core.kinematics import local_matrices
     from live.retarget.contacts_keep import ContactKeeper
     from live.retarget.contacts_self import SourceContacts
 
-    body = load_body("tall_heavy_male")
-    surface = body_surface(body)
-    rest = np.asarray(body.rest_joints, np.float64)
-    info = RestInfo.of(rest)
-    j = JOINT_INDEX
-    # Forearms folded across the belly: elbows by the sides, wrists in front of the navel.
-    pose = rest.copy()
-    front = pose[j["spine1"]] + [0.0, 0.02, 0.10]
-    for side, sign in (("left", 1.0), ("right", -1.0)):
-        pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.06 * sign, -0.28, 0.05]
-        pose[j[f"{side}_wrist"]] = front + [0.02 * sign, 0.0, 0.0]
-    glob = solve_globals(pose[None], info)[0][0]
-    pos, glob = (a[0] for a in forward_kinematics_matrices(local_matrices(glob)[None], pose[None, 0], info.offsets))
+    def folded(pose):  # forearms across the belly: elbows by the sides, wrists in front of the navel
+        j = JOINT_INDEX
+        front = pose[j["spine1"]] + [0.0, 0.02, 0.10]
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.06 * sign, -0.28, 0.05]
+            pose[j[f"{side}_wrist"]] = front + [0.02 * sign, 0.0, 0.0]
+
+    surface, info, glob, pos = _heavy_avatar_posed(folded)
     gap = np.full((len(PROBES), len(REGIONS)), 1.0)
     weight = np.zeros_like(gap)
     hold = ([p.name for p in PROBES].index("left_hand"), REGIONS.index("right_arm"))
@@ -330,23 +340,17 @@ def test_a_carried_correction_that_drags_an_arm_into_the_body_is_dropped():
     """An arm corrected on the frames before, now where that correction would hold it deep inside
     the belly while the retargeter's own pose is outside: the arm starts again from that pose
     rather than being rate-limited out of the body over many frames."""
-    from live.core.kinematics import forward_kinematics_matrices, local_matrices
-    from live.retarget.analytic import RestInfo, solve_globals
+    from live.core.kinematics import local_matrices
     from live.retarget.contacts_keep import _ARM_PROBES, ARMS, ContactKeeper, _Posed
     from live.retarget.contacts_self import SourceContacts
 
-    body = load_body("tall_heavy_male")
-    surface = body_surface(body)
-    rest = np.asarray(body.rest_joints, np.float64)
-    info = RestInfo.of(rest)
-    j = JOINT_INDEX
-    # Arms hanging down beside the body, clear of it.
-    pose = rest.copy()
-    for side, sign in (("left", 1.0), ("right", -1.0)):
-        pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
-        pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
-    glob = solve_globals(pose[None], info)[0][0]
-    pos, glob = (a[0] for a in forward_kinematics_matrices(local_matrices(glob)[None], pose[None, 0], info.offsets))
+    def hanging(pose):  # arms down beside the body, clear of it
+        j = JOINT_INDEX
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
+            pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
+
+    surface, info, glob, pos = _heavy_avatar_posed(hanging)
     nothing = np.zeros((len(PROBES), len(REGIONS)))
     source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
     clear = measure(surface, glob, pos, _ALL, 0.05, 0.003)
@@ -365,7 +369,6 @@ def test_a_carried_correction_that_drags_an_arm_into_the_body_is_dropped():
     keeper(surface, glob.copy(), local_matrices(glob), pos.copy(), source, 1 / 30)  # a first frame: nothing near
     keeper.state = deep.copy()
     keeper.state[:, :3] = deep[:, :3] @ glob[0]  # kept in the pelvis frame
-    keeper._seen = True
     g, p = glob.copy(), pos.copy()
     keeper(surface, g, local_matrices(glob), p, source, 1 / 30)
     after = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
