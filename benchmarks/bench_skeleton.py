@@ -4,12 +4,14 @@ Run: .venv/bin/python benchmarks/bench_skeleton.py [--frames 150] [--threads 1]
 Renders a real CMU clip on a body of the library (capsules when the library is missing) with the
 virtual OAK-D in a room with clutter, then times, per frame: the person finder (preprocess), the
 model alone (ours and the reference PointNet, same process, same input), and the whole stage
-(preprocess + model + flip guard + temporal model + One Euro filter). Prints median and p95 (ms).
+(preprocess + model + flip guard + temporal model + One Euro filter). Prints median and p95 (ms);
+with a model whose card asks for the depth-edge test, the finder without it too, for the ratio.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -22,7 +24,6 @@ sys.path.insert(0, str(ROOT))
 from live.core.frames import DepthFrame  # noqa: E402
 from live.core.report import percentiles  # noqa: E402
 from models.skeleton.preprocess import PersonFinder  # noqa: E402
-from models.skeleton.preprocess_config import PreprocessConfig  # noqa: E402
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonRegressor, SkeletonStage  # noqa: E402
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera  # noqa: E402
 from sim.room import Box, Room  # noqa: E402
@@ -72,9 +73,13 @@ def main(argv: list[str] | None = None) -> None:
     frames = render_frames(args.frames)
     print(f"{len(frames)} OAK-D 640x400 frames, onnxruntime threads={args.threads}")
     rows = []
-    finder = PersonFinder(PreprocessConfig(num_points=256))
+    config = SkeletonRegressor(DEFAULT_MODEL).preprocess_config()  # the shipped model's finder settings
+    finder = PersonFinder(config)
     rows.append(("preprocess (PersonFinder)", *timed(finder.find, frames)))
-    clouds = [c for c in (PersonFinder(PreprocessConfig(num_points=256)).find(f) for f in frames) if c]
+    if config.edge_jump_share is not None:  # what the model's depth-edge test costs, same frames
+        bare = PersonFinder(dataclasses.replace(config, edge_jump_share=None))
+        rows.append(("preprocess without the edge test", *timed(bare.find, frames)))
+    clouds = [c for c in (PersonFinder(config).find(f) for f in frames) if c]
     for label, path in (("ours", DEFAULT_MODEL), ("baseline PointNet", BASELINE_MODEL)):
         if not path.is_file():
             print(f"(no {path.name}: skipped)")
@@ -91,6 +96,9 @@ def main(argv: list[str] | None = None) -> None:
     for name, med, p95 in rows:
         print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")
     by_name = {name: med for name, med, _ in rows}
+    if "preprocess without the edge test" in by_name:
+        print("preprocess: with / without the edge test (medians, same process) = "
+              f"{by_name['preprocess (PersonFinder)'] / by_name['preprocess without the edge test']:.2f}")
     for what in ("model alone", "whole stage"):
         ours = [m for n, m in by_name.items() if n.startswith(f"{what}: ours") and "One Euro" not in n]
         ref = [m for n, m in by_name.items() if n.startswith(f"{what}: baseline")]

@@ -39,15 +39,18 @@ def predict(model: Path, points: np.ndarray) -> np.ndarray:
 
 def compare(models: list[Path], n_val: int, workers: int = 2) -> dict:
     from live.core.skeleton import UPPER_BODY_JOINTS
+    from models.skeleton.runtime import SkeletonRegressor
     from sim.skeleton_data import generate
 
     out: dict = {}
     for split, seed in SPLITS:
         n = max(n_val // 3, 12) if split == "val_upper" else n_val
-        d = generate(split, n, seed=seed, workers=workers, progress=True)
-        gt = d["joints"].astype(np.float64)
         joints = list(UPPER_BODY_JOINTS) if split == "val_upper" else slice(None)
         for model in models:
+            # The same held-out scenes, sampled as the finder does for this model.
+            d = generate(split, n, seed=seed, workers=workers, progress=True,
+                         edge_jump_share=SkeletonRegressor(model).edge_jump_share)
+            gt = d["joints"].astype(np.float64)
             pred = predict(model, d["points"])
             row = {"all": scores(pred[:, joints], gt[:, joints])}
             for key in ("camera", "body"):

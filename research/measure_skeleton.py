@@ -25,18 +25,20 @@ from live.core import assets
 KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "pck_10cm", "upper_body_mpjpe_mm")
 
 
-def validation_sets(n_val: int, workers: int = 2) -> dict[str, dict]:
+def validation_sets(n_val: int, workers: int = 2, edge_jump_share: float | None = None) -> dict[str, dict]:
     """The card's validation sets as train_skeleton draws them (seeds 1 and 2 beside training's 0),
-    sampled by the shipped finder (never read from the cache)."""
+    sampled by the shipped finder with the model's settings (never read from the cache)."""
     from sim.skeleton_data import generate
 
-    return {"val": generate("val", n_val, seed=1, workers=workers, cache=False),
-            "val_upper": generate("val_upper", max(n_val // 3, 12), seed=2, workers=workers, cache=False)}
+    return {"val": generate("val", n_val, seed=1, workers=workers, cache=False, edge_jump_share=edge_jump_share),
+            "val_upper": generate("val_upper", max(n_val // 3, 12), seed=2, workers=workers, cache=False,
+                                  edge_jump_share=edge_jump_share)}
 
 
 def temporal_results(regressor: Path, workers: int = 2) -> dict[Path, dict]:
     """{temporal model path: its on-performer validation metrics} for the shipped temporal models
     behind ``regressor``, on the temporal cards' validation sequences drawn by the shipped finder."""
+    from models.skeleton.runtime import SkeletonRegressor
     from models.skeleton.temporal import TemporalRefiner, temporal_model_path
     from models.train.train_skeleton_temporal import (
         build_examples,
@@ -47,7 +49,8 @@ def temporal_results(regressor: Path, workers: int = 2) -> dict[Path, dict]:
     )
     from sim.skeleton_sequences import SEQUENCE_FPS, generate_sequences
 
-    val = generate_sequences("val", 150, seed=1, workers=workers, cache=False)
+    val = generate_sequences("val", 150, seed=1, workers=workers, cache=False,
+                             edge_jump_share=SkeletonRegressor(regressor).edge_jump_share)
     world, conf = regress_sequences(val, regressor, 1)
     out = {}
     for lag in (0, 2):
@@ -73,7 +76,8 @@ def main(argv: list[str] | None = None) -> dict:
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
     from models.train.train_skeleton import onnx_results
 
-    results = onnx_results(args.model, validation_sets(args.val, args.workers), int(card.get("num_points", 256)))
+    share = card.get("preprocess", {}).get("edge_jump_share")
+    results = onnx_results(args.model, validation_sets(args.val, args.workers, share), int(card.get("num_points", 256)))
     results = {split: m for split, m in results.items() if "mpjpe_mm" in m}  # not the per-body / camera groups
     for split, m in results.items():
         before = card.get("metrics", {}).get(split, {})

@@ -56,8 +56,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--card", action="store_true", help="record a no-worse result in the temporal cards")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args(argv)
+    from models.skeleton.runtime import SkeletonRegressor
+
     own = args.trained_behind or assets.weight("skeleton.onnx")
-    val = generate_sequences("val", 150, seed=1, workers=args.workers, progress=True)
+
+    def sequences(regressor: Path) -> dict:
+        """The validation sequences as the finder samples them for this regressor."""
+        share = SkeletonRegressor(regressor).edge_jump_share
+        return generate_sequences("val", 150, seed=1, workers=args.workers, progress=True, edge_jump_share=share)
+
     command = "python -m research.validate_temporal " + shlex.join(argv if argv is not None else sys.argv[1:])
     for name in ("skeleton_temporal.onnx", "skeleton_temporal_lag2.onnx"):
         path = assets.weight(name)
@@ -65,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
         if card.get("regressor_sha256") != file_sha256(own):
             print(f"{name}: not trained behind {own}; skipped")
             continue
-        before, after = behind(own, path, val), behind(args.regressor, path, val)
+        before, after = behind(own, path, sequences(own)), behind(args.regressor, path, sequences(args.regressor))
         for label, res in (("own regressor", before), ("new regressor", after)):
             for k, m in res.items():
                 print(f"{name:28s} {label:13s} {k:9s} " + "  ".join(f"{key} {m[key]}" for key in KEYS), flush=True)

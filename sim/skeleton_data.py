@@ -127,10 +127,12 @@ class Job:
     seed: int
     split: str = "train"
     realism: bool = False
+    edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
 
 
 def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
-              anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False) -> list[Job]:
+              anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False,
+              edge_jump_share: float | None = None) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
     probability ``anny_share``, else a training preset. "val_real" jobs always have realism."""
@@ -159,7 +161,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split, realism))
+                        int(rng.integers(2**31)), split, realism, edge_jump_share))
     return jobs
 
 
@@ -270,10 +272,8 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
 
         extras = random_extras(rng, body, joints, frames, c2w, job.closeup, posture)
         room = extras.room(room)
-    # Training samples: one pass at the full stride; validation samples: the runtime's
-    # coarse-to-fine pass (both draw uniformly from the same person pixels; docs/skeleton.md).
-    coarse = PreprocessConfig.coarse_stride if job.split != "train" else None
-    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, coarse_stride=coarse))
+    # The runtime's finder: the same coarse-to-fine pass and evenly spread sample.
+    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, edge_jump_share=job.edge_jump_share))
     out: dict[str, list] = {k: [] for k in ("points", "joints", "visible", "frame", "distance", "count")}
     for i in frames:
         if extras is None:
@@ -316,8 +316,10 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
 
 # ---------------------------------------------------------------------------- the dataset
 def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
-                realism: bool = False) -> Path:
-    fields = {"split": split, "n": n_samples, "seed": seed, "v": 3, "val_subjects": sorted(VAL_SUBJECTS)}
+                realism: bool = False, edge_jump_share: float | None = None) -> Path:
+    fields = {"split": split, "n": n_samples, "seed": seed, "v": 4, "val_subjects": sorted(VAL_SUBJECTS)}
+    if edge_jump_share is not None:
+        fields.update(edge_jump_share=edge_jump_share)
     if realism or split == "val_real":
         from sim.sensor_realism import REALISM_VERSION
 
@@ -330,7 +332,7 @@ def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share
 
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
              progress: bool = False, anny: int = 0, anny_share: float = 0.0,
-             realism: bool = False) -> dict[str, np.ndarray]:
+             realism: bool = False, edge_jump_share: float | None = None) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
@@ -339,15 +341,17 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     count (S,) int32 (person points found); S <= n_samples (frames where the finder failed are
     dropped; ``failed`` counts them). anny > 0: training jobs take one of ``anny`` on-demand Anny
     phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``.
-    realism: training jobs as users' sensors see people (module doc; "val_real" always)."""
+    realism: training jobs as users' sensors see people (module doc; "val_real" always).
+    edge_jump_share: the finder leaves depth-edge pixels out of the sample (PreprocessConfig)."""
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
-    path = _cache_path(split, n_samples, seed, anny, anny_share, realism)
+    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     phenotypes = anny_phenotypes(anny, seed) if anny else None
-    jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism)
+    jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism,
+                     edge_jump_share=edge_jump_share)
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),

@@ -85,7 +85,7 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
         extras = random_extras(rng, body, joints, window, c2w, job.closeup, posture)
         room = extras.room(room)
     given = np.eye(4) if extras is not None and extras.hide_extrinsics else c2w
-    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS))  # the runtime's settings
+    finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, edge_jump_share=job.edge_jump_share))
     f = SEQUENCE_FRAMES
     out = {"points": np.zeros((f, STORED_POINTS, 3), np.float32),
            "to_world": np.tile(np.eye(4), (f, 1, 1)), "found": np.zeros(f, bool),
@@ -113,9 +113,11 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
 
 
 def _cache_path(split: str, n_sequences: int, seed: int, anny: int = 0, anny_share: float = 0.0,
-                realism: bool = False):
+                realism: bool = False, edge_jump_share: float | None = None):
     fields = {"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
               "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}
+    if edge_jump_share is not None:
+        fields.update(edge_jump_share=edge_jump_share)
     if realism:
         from sim.sensor_realism import REALISM_VERSION
 
@@ -132,16 +134,19 @@ def _load(path) -> dict[str, np.ndarray]:
 
 
 def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, anny_share: float,
-                           realism: bool = False) -> dict[str, np.ndarray] | None:
+                           realism: bool = False, edge_jump_share: float | None = None
+                           ) -> dict[str, np.ndarray] | None:
     """The cached sequences of the same split, seed and bodies with the most sequences below n, if any."""
-    best = max((n for n in range(1, n_sequences)
-                if _cache_path(split, n, seed, anny, anny_share, realism).is_file()), default=None)
-    return None if best is None else _load(_cache_path(split, best, seed, anny, anny_share, realism))
+    def path(n: int):
+        return _cache_path(split, n, seed, anny, anny_share, realism, edge_jump_share)
+
+    best = max((n for n in range(1, n_sequences) if path(n).is_file()), default=None)
+    return None if best is None else _load(path(best))
 
 
 def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
                        progress: bool = False, anny: int = 0, anny_share: float = 0.0,
-                       realism: bool = False) -> dict[str, np.ndarray]:
+                       realism: bool = False, edge_jump_share: float | None = None) -> dict[str, np.ndarray]:
     """The sequences of a split (cached under .cache/skeleton_data). anny > 0: training
     sequences take one of ``anny`` on-demand Anny phenotypes (the per-frame data's,
     ``sim.skeleton_data.anny_phenotypes``; the train extra) with probability ``anny_share``.
@@ -149,20 +154,22 @@ def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int
     Returns points (S, F, 512, 3) float32 person frame, to_world (S, F, 4, 4), found (S, F) bool,
     joints (S, F, 22, 3) float32 world, visible (S, F, 22) bool, t_ns (S, F) int64, and per
     sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool. realism:
-    training sequences as users' sensors see people (module doc)."""
+    training sequences as users' sensors see people (module doc). edge_jump_share: the finder's
+    (PreprocessConfig), as the regressor the sequences are for was trained with."""
     if split not in ("train", "val"):
         raise UserInputError(f"sequence data has splits train and val, not {split!r}")
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
-    path = _cache_path(split, n_sequences, seed, anny, anny_share, realism)
+    path = _cache_path(split, n_sequences, seed, anny, anny_share, realism, edge_jump_share)
     if cache and path.is_file():
         return _load(path)
     # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n. Its plan
     # for n jobs starts with its plan for fewer, so a cached smaller set is this one's prefix.
     phenotypes = anny_phenotypes(anny, seed) if anny else None  # the per-frame data's, same seed
     jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1, anny=phenotypes,
-                     anny_share=anny_share, realism=realism)[:n_sequences]
-    prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share, realism) if cache else None
+                     anny_share=anny_share, realism=realism, edge_jump_share=edge_jump_share)[:n_sequences]
+    prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share, realism,
+                                    edge_jump_share) if cache else None
     done = len(prefix["found"]) if prefix else 0
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs[done:] if j.body.startswith("anny:")}), progress)

@@ -276,3 +276,38 @@ def test_ransac_plane_is_deterministic_and_fits_a_noisy_floor():
     (n, d, inliers), (n2, d2, inliers2) = runs
     assert np.array_equal(n, n2) and d == d2 and np.array_equal(inliers, inliers2)
     assert abs(abs(n[1]) - 1.0) < 1e-3 and abs(abs(d) - 1.4) < 0.005  # the plane y = 1.4 (camera axes)
+
+
+def test_edge_pixels_mark_both_sides_of_a_jump_not_slopes_or_holes():
+    from models.skeleton.depth_edges import edge_pixels
+
+    z = np.full((6, 8), 2.0, np.float32)
+    z[:, 5:] = 3.0  # a wall 1 m behind: a jump of half the range
+    z[3, 1] = 0.0  # a hole is no edge
+    edge = edge_pixels(z, 0.15)
+    assert edge[:, 4].all() and edge[:, 5].all()
+    assert not edge[:, :4].any() and not edge[:, 6:].any()
+    slope = np.tile(np.linspace(2.0, 2.5, 8, dtype=np.float32), (6, 1))  # 7 cm steps
+    assert not edge_pixels(slope, 0.15).any()
+
+
+def test_edge_share_keeps_depth_edge_pixels_out_of_the_sample():
+    from models.skeleton.depth_edges import edge_pixels
+
+    camera = look_at_camera(2.0, 1.3, 0.4)
+    noise = NoiseModel(flying_pixels=0.6, edge_jump_px=0.0, occlusion=False)  # depth across every edge
+    f = frame(camera, room=Room(width=5.0, depth=5.0, boxes=()), noise=noise, seed=3)
+    z = f.depth_mm[::2, ::2].astype(np.float32) * np.float32(0.001)  # the sample's pixel stride
+    edge = edge_pixels(np.where((z > 0.3) & (z < 6.0), z, np.float32(0)), 0.15)
+
+    def on_edges(share):
+        cloud = PersonFinder(PreprocessConfig(edge_jump_share=share)).find(f)
+        world = cloud.points @ cloud.to_world[:3, :3].T + cloud.to_world[:3, 3]
+        cam = (world - camera[:3, 3]) @ camera[:3, :3]
+        k = f.intrinsics
+        u = np.rint(cam[:, 0] / cam[:, 2] * k[0, 0] + k[0, 2]).astype(int)
+        v = np.rint(cam[:, 1] / cam[:, 2] * k[1, 1] + k[1, 2]).astype(int)
+        return int(edge[v // 2, u // 2].sum())
+
+    assert on_edges(None) > 0
+    assert on_edges(0.15) == 0

@@ -129,6 +129,21 @@ def test_missing_model_is_a_model_error(tmp_path):
         SkeletonRegressor(bad)
 
 
+def test_the_finder_samples_as_the_model_card_says(tmp_path):
+    import json
+    import shutil
+
+    shutil.copy(DEFAULT_MODEL, tmp_path / "edges.onnx")
+    card = json.loads(DEFAULT_MODEL.with_suffix(".json").read_text())
+    card["preprocess"] = {"edge_jump_share": 0.2}
+    (tmp_path / "edges.json").write_text(json.dumps(card))
+    stage = SkeletonStage(tmp_path / "edges.onnx", temporal=False)
+    assert stage.finder.config.edge_jump_share == 0.2
+    assert stage.finder.config.num_points == stage.regressor.num_points
+    shipped = SkeletonRegressor().edge_jump_share
+    assert SkeletonStage(temporal=False).finder.config.edge_jump_share == shipped
+
+
 def test_evaluate_sessions_compares_both_models(tmp_path):
     from live.evaluation.skeleton import evaluate_sessions, format_report
     from sim.synth import CameraPlacement, SynthOptions, synthesize

@@ -13,6 +13,11 @@ class PreprocessConfig:
     # Depth images: find the person on a coarser stride, then draw the sample from the person's
     # pixels at pixel_stride (the same points, ~4x less work). None: one pass at pixel_stride.
     coarse_stride: int | None = 4
+    # Depth images: pixels with a 4-neighbour more than this share of their range nearer or
+    # farther are left out of the sample (``depth_edges.edge_pixels``: mixed returns at the
+    # silhouette). A regressor declares it in its card (``preprocess``), as it was trained
+    # with it. None: every pixel.
+    edge_jump_share: float | None = None
     min_range_m: float = 0.3
     max_range_m: float = 6.0
     floor_margin_m: float = 0.03

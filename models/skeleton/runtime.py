@@ -52,6 +52,12 @@ class SkeletonRegressor:
             raise ModelError(f"{self.path.name}: expected one (B, N, 3) input, got {[i.shape for i in inputs]}")
         self._input = inputs[0].name
         self.num_points = int(self.card.get("num_points", 256))
+        share = self.card.get("preprocess", {}).get("edge_jump_share")
+        self.edge_jump_share = None if share is None else float(share)
+
+    def preprocess_config(self) -> PreprocessConfig:
+        """The finder's settings this model was trained with (sample size, edge pixels)."""
+        return PreprocessConfig(num_points=self.num_points, edge_jump_share=self.edge_jump_share)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         x = np.asarray(points, np.float32)
@@ -114,7 +120,7 @@ class SkeletonStage:
         self.regressor = SkeletonRegressor(model_path, threads)
         self.temporal = _open_temporal(temporal, self.regressor.path, threads, int(lag))
         self.lag_s = 0.0 if self.temporal is None else self.temporal.lag_s  # latency the model adds
-        self.finder = finder or PersonFinder(PreprocessConfig(num_points=self.regressor.num_points))
+        self.finder = finder or PersonFinder(self.regressor.preprocess_config())
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
         # The temporal model smooths already (and better, docs/skeleton.md): One Euro on top would
         # only add lag, so by default it runs only without one.

@@ -229,6 +229,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--clean", type=int, default=0, metavar="N",
                    help="N more training samples without realism (the default sensor model, extrinsics given; "
                         "seed + 10), mixed in so the clean views stay as good")
+    p.add_argument("--edge-share", type=float, default=None, metavar="S",
+                   help="leave depth-edge pixels (a 4-neighbour more than S of their range nearer or farther) "
+                        "out of every sample; the card tells the runtime to do the same")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--threads", type=int, default=2)
@@ -262,7 +265,7 @@ def main(argv: list[str] | None = None) -> dict:
         ensure_built(anny_phenotypes(anny, args.seed), progress)
     data = {split: generate(split, n, seed=args.seed + k, workers=args.workers, progress=progress,
                             cache=not args.no_cache, anny=anny, anny_share=args.anny_share,
-                            realism=args.realism)
+                            realism=args.realism, edge_jump_share=args.edge_share)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12)), ("val_real", n_val)))}
     if args.clean and args.realism:
@@ -272,7 +275,8 @@ def main(argv: list[str] | None = None) -> dict:
 
             ensure_built(anny_phenotypes(anny, args.seed + 10), progress)
         clean = generate("train", args.clean, seed=args.seed + 10, workers=args.workers, progress=progress,
-                         cache=not args.no_cache, anny=anny, anny_share=args.anny_share)
+                         cache=not args.no_cache, anny=anny, anny_share=args.anny_share,
+                         edge_jump_share=args.edge_share)
         data["train"] = {k: (data["train"][k] + clean[k] if np.ndim(v) == 0
                              else np.concatenate([data["train"][k], clean[k]]))
                          for k, v in data["train"].items()}
@@ -311,7 +315,8 @@ def main(argv: list[str] | None = None) -> dict:
                                "floor under the person, +y up, camera toward +z"},
             "output": {"name": "joints", "shape": ["batch", 22, 3], "frame": "person frame",
                        "order": "CONVENTIONS.md 22-joint skeleton"},
-            "num_points": recipe.num_points, "onnx_opset": 17, "onnx_max_abs_diff_m": diff,
+            "num_points": recipe.num_points, "preprocess": {"edge_jump_share": args.edge_share},
+            "onnx_opset": 17, "onnx_max_abs_diff_m": diff,
             "recipe": recipe.__dict__, "training": log, "data_seconds": data_seconds,
             "data": {split: describe(d) for split, d in data.items()},
             "split": {"val_subjects": sorted(VAL_SUBJECTS), "val_bodies": split_bodies(list_presets(), "val"),
