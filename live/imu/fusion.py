@@ -139,9 +139,9 @@ class RestShape:
 #: (confidence > 0): RMS errors of the skeleton stage on sessions of the fusion's tuning clips and
 #: bodies (CMU subject 7 on adult_male_average and short_male; ``python -m
 #: research.imu_fusion_eval --tune`` re-measures them on its own cases, 0.011-0.037 m behind the
-#: regressor they were measured with). Behind the regressor shipped since, the tuning cases measure
-#: 0.009-0.039 m; with those the tuning cases came out no better (fused 28.0 mm either way, lost
-#: limbs 40.2 against 38.8 mm), so these stay.
+#: regressor they were measured with). Behind the shipped regressor the tuning cases measure
+#: 0.019-0.052 m; with those the tuning cases come out no better (fused 29.4 mm either way, lost
+#: limbs 37.7 against 37.9 mm), so these stay.
 DEPTH_STD = np.array([0.017, 0.020, 0.020, 0.026, 0.024, 0.020, 0.029, 0.024, 0.020, 0.031, 0.028, 0.023,
                       0.021, 0.024, 0.023, 0.021, 0.023, 0.020, 0.025, 0.029, 0.040, 0.039])
 #: Joints inside the body: the depth never supports them (confidence ~0), and they are no worse
