@@ -54,6 +54,21 @@ def render_frames(n: int, seed: int = 0) -> list[DepthFrame]:
     return frames
 
 
+def timed_alternating(fns, items, warmup: int = 10) -> list[tuple[float, float]]:
+    """(median, p95) ms of each of ``fns`` on every item, the functions taking turns per item."""
+    ts: list[list[float]] = [[] for _ in fns]
+    for it in items:
+        for k, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            fn(it)
+            ts[k].append(time.perf_counter() - t0)
+    out = []
+    for t in ts:
+        p = percentiles(np.array(t[warmup:]) * 1e3, (50, 95))
+        out.append((p["p50"], p["p95"]))
+    return out
+
+
 def timed(fn, items, warmup: int = 10) -> tuple[float, float]:
     ts = []
     for it in items:
@@ -75,10 +90,12 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     config = SkeletonRegressor(DEFAULT_MODEL).preprocess_config()  # the shipped model's finder settings
     finder = PersonFinder(config)
-    rows.append(("preprocess (PersonFinder)", *timed(finder.find, frames)))
-    if config.edge_jump_share is not None:  # what the model's depth-edge test costs, same frames
+    if config.edge_jump_share is None:
+        rows.append(("preprocess (PersonFinder)", *timed(finder.find, frames)))
+    else:  # what the model's depth-edge test costs: both finders frame by frame, alternating
         bare = PersonFinder(dataclasses.replace(config, edge_jump_share=None))
-        rows.append(("preprocess without the edge test", *timed(bare.find, frames)))
+        with_test, without = timed_alternating((finder.find, bare.find), frames)
+        rows += [("preprocess (PersonFinder)", *with_test), ("preprocess without the edge test", *without)]
     clouds = [c for c in (PersonFinder(config).find(f) for f in frames) if c]
     for label, path in (("ours", DEFAULT_MODEL), ("baseline PointNet", BASELINE_MODEL)):
         if not path.is_file():
