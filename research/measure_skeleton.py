@@ -74,9 +74,10 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     card_path = args.model.with_suffix(".json")
     card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+    from models.skeleton.runtime import SkeletonRegressor
     from models.train.train_skeleton import onnx_results
 
-    share = card.get("preprocess", {}).get("edge_jump_share")
+    share = SkeletonRegressor(args.model).edge_jump_share  # the finder settings it was trained with
     results = onnx_results(args.model, validation_sets(args.val, args.workers, share), int(card.get("num_points", 256)))
     results = {split: m for split, m in results.items() if "mpjpe_mm" in m}  # not the per-body / camera groups
     for split, m in results.items():
