@@ -311,3 +311,21 @@ def test_edge_share_keeps_depth_edge_pixels_out_of_the_sample():
 
     assert on_edges(None) > 0
     assert on_edges(0.15) == 0
+
+
+def test_edge_test_at_pixels_matches_a_whole_image_reference():
+    from models.skeleton.depth_edges import edge_pixels_at
+
+    rng = np.random.default_rng(0)
+    z = (rng.random((40, 30)) * 3).astype(np.float32)
+    z[rng.random(z.shape) < 0.2] = 0.0
+    share = np.float32(0.15)
+    # Reference: each pixel against its right / lower neighbour, marked on both sides.
+    ref = np.zeros(z.shape, bool)
+    for a, b in ((np.s_[:, 1:], np.s_[:, :-1]), (np.s_[1:, :], np.s_[:-1, :])):
+        both = (z[a] > 0) & (z[b] > 0)
+        jump = np.abs(z[a] - z[b])
+        ref[a] |= both & (jump > z[a] * share)
+        ref[b] |= both & (jump > z[b] * share)
+    idx = rng.choice(z.size, 300, replace=False)
+    np.testing.assert_array_equal(edge_pixels_at(z, idx, 0.15), ref.reshape(-1)[idx])
