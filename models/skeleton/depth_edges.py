@@ -8,26 +8,27 @@ from __future__ import annotations
 import numpy as np
 
 
-def edge_pixels_at(z: np.ndarray, flat: np.ndarray, share: float) -> np.ndarray:
+def edge_pixels_at(z: np.ndarray, valid: np.ndarray, flat: np.ndarray, share: float) -> np.ndarray:
     """(K,) bool: which of the pixels ``flat`` (K,) (flat indices) of the depth image ``z`` (H, W)
-    metres, 0 = no depth, have a 4-neighbour more than ``share`` of their own range nearer or
-    farther. Both sides of a depth edge are marked, the person's silhouette against a wall
-    behind them included: what lies there is the least reliable depth in a real frame, and the
-    regressor learns the same trimmed silhouette from training data drawn through this test.
-    Only the given pixels are tested: the fine sample visits a few thousand of a box's."""
+    metres, where ``valid`` (H, W), have a valid 4-neighbour more than ``share`` of their own
+    range nearer or farther. Both sides of a depth edge are marked, the person's silhouette
+    against a wall behind them included: what lies there is the least reliable depth in a real
+    frame, and the regressor learns the same trimmed silhouette from training data drawn through
+    this test. Only the given pixels are tested: the fine sample visits a few thousand of a box's."""
     h, w = z.shape
-    padded = np.zeros((h + 2, w + 2), z.dtype)  # no depth around the image: no edge there
-    padded[1:-1, 1:-1] = z
+    padded = np.zeros((h + 2, w + 2), z.dtype)  # 0 = no depth, around the image too: no edge there
+    np.copyto(padded[1:-1, 1:-1], z, where=valid)
+    padded = padded.reshape(-1)
     at = (flat // w + 1) * (w + 2) + flat % w + 1
-    here = padded.reshape(-1)[at]
+    here = padded[at]
     limit = here * np.float32(share)
     edge = np.zeros(len(flat), bool)
     for step in (1, -1, w + 2, -(w + 2)):
-        there = padded.reshape(-1)[at + step]
+        there = padded[at + step]
         edge |= (there > 0) & (np.abs(there - here) > limit)
     return edge & (here > 0)
 
 
 def edge_pixels(z: np.ndarray, share: float) -> np.ndarray:
-    """(H, W) bool: ``edge_pixels_at`` over the whole image."""
-    return edge_pixels_at(z, np.arange(z.size), share).reshape(z.shape)
+    """(H, W) bool: ``edge_pixels_at`` over the whole image, its pixels with depth (z > 0) valid."""
+    return edge_pixels_at(z, z > 0, np.arange(z.size), share).reshape(z.shape)

@@ -72,12 +72,12 @@ def fine_sample(frame: DepthFrame, c2w: np.ndarray, box: tuple[int, int, int, in
     if background is not None:
         valid &= background.foreground(frame.depth_mm, cfg.background_margin_m, at)
     n = cfg.num_points
-    share = cfg.edge_jump_share or 0.0
-    depth = None if cfg.edge_jump_share is None else np.where(valid, z, np.float32(0))
+    share = cfg.edge_jump_share
 
     def usable(idx: np.ndarray) -> np.ndarray:
+        """The candidate pixels (flat crop indices) with depth in range, off depth edges."""
         idx = idx[valid.reshape(-1)[idx]]
-        return idx if depth is None else idx[~edge_pixels_at(depth, idx, share)]
+        return idx if share is None else idx[~edge_pixels_at(z, valid, idx, share)]
 
     crop = (r0 // s, c0 // s, z.shape[1], -(-w // s))
     # 6n visits of the box hold n of the person's pixels when they fill a sixth of it (0.29-0.48
@@ -85,9 +85,7 @@ def fine_sample(frame: DepthFrame, c2w: np.ndarray, box: tuple[int, int, int, in
     order = r2_grid_order(z.shape[0], z.shape[1], R2_VISITS * n, rng.random(2))
     pts = _person_points(usable(order), rays, z, c2w, origin, labels, lab, crop, cfg)
     if len(pts) < n:
-        cand = np.flatnonzero(valid)
-        if depth is not None:
-            cand = cand[~edge_pixels_at(depth, cand, share)]
+        cand = usable(np.flatnonzero(valid))
         rng.shuffle(cand)
         pts = _person_points(cand, rays, z, c2w, origin, labels, lab, crop, cfg, n)
     if len(pts) >= n:
