@@ -11,6 +11,7 @@ from live.core.skeleton import default_rest_joints
 from models.skeleton.ground import LEVEL_UP, find_wall
 from models.skeleton.person_clusters import plane_share
 from models.skeleton.preprocess import PersonFinder
+from models.skeleton.preprocess_config import PreprocessConfig
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
 from sim.room import Room, capsule_body
 
@@ -87,6 +88,25 @@ def test_a_first_pick_of_still_clutter_gives_way_to_the_performer_who_moves():
     assert all(x > 0.7 for x in picks[16:])
 
 
+def _walking_away_picks(config: PreprocessConfig) -> list[float]:
+    finder = PersonFinder(config)
+    picks = []
+    for k in range(24):
+        # Still for a moment, then walking away from the camera at 0.9 m/s: nothing of them comes nearer.
+        cloud = finder.find(_scene_frame(k, -1.6 - 0.9 * max(k - 4, 0) / 30.0))
+        assert cloud is not None
+        picks.append(cloud.to_world[0, 3])
+    return picks
+
+
+def test_a_performer_walking_away_moves_too():
+    picks = _walking_away_picks(PreprocessConfig())
+    assert picks[0] < -0.9  # the bigger, nearer figure while nothing moves
+    assert all(x > 0.7 for x in picks[16:])
+    # Counting only what came nearer, the still figure keeps them.
+    assert all(x < -0.9 for x in _walking_away_picks(PreprocessConfig(motion_recede_m=None))[16:])
+
+
 def test_motion_counts_what_came_nearer_not_the_wall_a_performer_uncovers():
     finder = PersonFinder()
     before = np.full((2, 3), 3000, np.uint16)
@@ -95,6 +115,11 @@ def test_motion_counts_what_came_nearer_not_the_wall_a_performer_uncovers():
     after[:, 1] = 2000  # they stepped one column over
     moved = finder._moved((after, before), np.arange(6)).reshape(2, 3)
     assert moved[:, 1].all() and not moved[:, 0].any() and not moved[:, 2].any()
+    # Stepping back 0.3 m is the same surface moving away; the wall 1 m behind is what they uncovered.
+    back = np.full((2, 3), 3000, np.uint16)
+    back[0, 0] = 2300  # the other row shows the wall they uncovered
+    moved = finder._moved((back, before), np.arange(6)).reshape(2, 3)
+    assert moved[0, 0] and not moved[1, 0] and not moved[:, 1:].any()
 
 
 def test_the_floor_search_reads_enough_pixels_of_a_small_image():

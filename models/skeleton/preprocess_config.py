@@ -49,6 +49,11 @@ class PreprocessConfig:
     motion_noise_share: float = 0.15
     motion_full_share: float = 0.5
     static_weight: float = 0.1
+    # A surface that went farther by up to motion_recede_m beyond the noise counts as moved too:
+    # the same surface stepping back (a performer walking away shows nothing nearer). A larger
+    # jump is what a performer uncovered behind them (a wall, a shelf), which did not move.
+    # None: only what came nearer.
+    motion_recede_m: float | None = 0.4
     # Tracking: a frame is searched only in a window around the previous person grown by
     # track_margin_m (at their depth) on each side; the whole image is searched when nobody was
     # tracked, when the window holds no person or cuts the one found, and every
