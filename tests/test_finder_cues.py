@@ -9,7 +9,7 @@ from live.core.frames import DepthFrame
 from live.core.rotations import angle_deg
 from live.core.skeleton import default_rest_joints
 from models.skeleton.ground import LEVEL_UP, find_wall
-from models.skeleton.person_clusters import plane_share
+from models.skeleton.person_clusters import find_person_cluster, plane_share
 from models.skeleton.preprocess import PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
@@ -153,3 +153,22 @@ def test_a_floor_missing_from_the_coarse_points_is_searched_in_the_finer_ones():
     ground = GroundEstimator()
     ground.update(0, np.concatenate([wall, floor]), finer)
     assert not asked and ground.source == "floor"  # found on the coarse one: the finer is not read
+
+
+def test_a_performer_joined_to_the_wall_behind_them_is_split_off_it():
+    rng = np.random.default_rng(3)
+    wall = np.stack([rng.uniform(-2.0, 2.0, 6000), rng.uniform(0.0, 2.5, 6000), rng.normal(-3.0, 0.01, 6000)])
+    verts = capsule_body(JOINTS + [0.0, 0.0, -2.6])[0]
+    person = verts[verts[:, 2] > -2.6].T  # the half facing the camera
+    # Flying pixels between the performer's silhouette and the wall 40 cm behind join the two.
+    bridge = np.stack([rng.uniform(-0.25, 0.25, 300), rng.uniform(0.3, 1.6, 300), rng.uniform(-2.95, -2.55, 300)])
+    pts = np.concatenate([wall, person, bridge], axis=1).astype(np.float32)
+    eye = np.array([0.0, 1.0])
+    assert find_person_cluster(pts, eye, 120, PreprocessConfig(wall_tolerance_m=None), None) is None
+    got = find_person_cluster(pts, eye, 120, PreprocessConfig(), None)
+    assert got is not None
+    found = got[0]
+    assert not found[:wall.shape[1]].any()  # no point of the wall
+    alone = find_person_cluster(person.astype(np.float32), eye, 120, PreprocessConfig(), None)
+    assert alone is not None
+    assert found[wall.shape[1]:wall.shape[1] + person.shape[1]].mean() >= alone[0].mean() - 0.01

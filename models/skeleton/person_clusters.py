@@ -61,6 +61,33 @@ def plane_share(pts: np.ndarray, tolerance_m: float, max_points: int = 400, hypo
     return float(inliers.max()) / n
 
 
+def wall_inliers(pts: np.ndarray, eye_xz: np.ndarray, tolerance_m: float, max_points: int = 400,
+                 hypotheses: int = 48) -> np.ndarray:
+    """(M,) bool: the points (3, M) of the vertical plane holding most of them, within
+    ``tolerance_m`` + 1 cm x range² of it (the range from ``eye_xz``: depth noise grows with
+    its square). A vertical plane is a line on the floor, so each hypothesis is the line through
+    two points at least 30 cm apart (RANSAC on at most ``max_points``, every k-th, fixed seed:
+    the same cluster always gives the same plane)."""
+    xz = np.stack([pts[0], pts[2]], axis=1).astype(np.float64)
+    m = len(xz)
+    if m < 10:
+        return np.zeros(m, bool)
+    eye = np.asarray(eye_xz, np.float64)
+    tol = tolerance_m + 0.01 * ((xz - eye) ** 2).sum(1)
+    step = max(1, -(-m // max_points))
+    sub, sub_tol = xz[::step], tol[::step]
+    picks = np.random.default_rng(0).integers(0, len(sub), size=(hypotheses, 2))
+    a, d = sub[picks[:, 0]], sub[picks[:, 1]] - sub[picks[:, 0]]
+    length = np.hypot(d[:, 0], d[:, 1])
+    ok = length > 0.3
+    if not ok.any():
+        return np.zeros(m, bool)
+    normals = np.stack([-d[ok, 1], d[ok, 0]], axis=1) / length[ok, None]
+    offsets = -np.einsum("ij,ij->i", normals, a[ok])
+    best = int(np.argmax((np.abs(sub @ normals.T + offsets) <= sub_tol[:, None]).sum(0)))
+    return np.abs(xz @ normals[best] + offsets[best]) <= tol
+
+
 def _score(base: float, flat: float, motion_weight: float | None, apart: float | None) -> float:
     """A candidate's score: its size, height and top term times its flatness factor and motion
     weight, over one plus its distance to the previous person (None: not applied)."""
@@ -75,7 +102,7 @@ def _score(base: float, flat: float, motion_weight: float | None, apart: float |
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
                         last_center: np.ndarray | None, moving: np.ndarray | None = None,
                         cut_below: np.ndarray | None = None, cut_above: np.ndarray | None = None,
-                        floor_known: bool = True, pull: bool = True
+                        floor_known: bool = True, pull: bool = True, split_walls: bool = True
                         ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
     """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
     the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
@@ -91,7 +118,10 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
 to a cluster's own extent. pull: whether the previous person's position holds back every other candidate
 (score / (1 + distance)); False while that person has not been seen moving: it then holds back
 only candidates moving no more than it, so that a first pick of still clutter gives way to a
-performer who moves (the tracked cluster's half threshold applies either way)."""
+performer who moves (the tracked cluster's half threshold applies either way). split_walls: when
+no candidate passes, each cluster too wide to be a person loses the points of its wall (a
+vertical plane holding most of it, ``wall_inliers``) and what is left is searched again: a
+performer close to a wall, joined to it by noise or flying pixels between them."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -156,6 +186,7 @@ performer who moves (the tracked cluster's half threshold applies either way).""
     if not pull and moving is not None:
         pulled &= weight <= (weight[tracked] if tracked else cfg.static_weight)
     best, best_score = None, 0.0
+    too_wide = []
     for k, lab in enumerate(order):
         if bound[lab] <= best_score:
             if k:
@@ -169,6 +200,7 @@ performer who moves (the tracked cluster's half threshold applies either way).""
         b_j0, b_j1 = max(int(sj.min()) - 1, 0), min(int(sj.max()) + 1, crop.shape[0] - 1)
         footprint = np.hypot(b_i1 - b_i0 + 1, b_j1 - b_j0 + 1) * cfg.cell_m
         if footprint > cfg.max_footprint_m + 2 * cfg.cell_m:
+            too_wide.append(lab)
             continue  # a wall or a large piece of furniture
         if pulled[lab] and best is not None:
             # Its median lies in its box: the box's distance to the previous person bounds
@@ -211,4 +243,18 @@ performer who moves (the tracked cluster's half threshold applies either way).""
         score = _score(base, flat, moved, apart)
         if score > best_score:
             best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score
+    if best is None and split_walls and cfg.wall_tolerance_m is not None:
+        for lab in too_wide:
+            idx = np.flatnonzero(point_label == lab)
+            rest = idx[~wall_inliers(pts[:, idx], eye_xz, cfg.wall_tolerance_m)]
+            if len(rest) < min_points or len(rest) > len(idx) // 2:
+                continue  # no wall holding most of it
+            def part(a: np.ndarray | None) -> np.ndarray | None:
+                return None if a is None else a[rest]
+            got = find_person_cluster(pts[:, rest], eye_xz, min_points, cfg, last_center, part(moving), part(cut_below),
+                                      part(cut_above), floor_known, pull, split_walls=False)
+            if got is not None:
+                sel = np.zeros(pts.shape[1], bool)
+                sel[rest[got[0]]] = True
+                return (sel, *got[1:])
     return best

@@ -29,6 +29,10 @@ class PreprocessConfig:
     max_height_m: float = 2.4
     min_narrow_top: float = 0.4
     max_footprint_m: float = 1.8
+    # When no cluster passes, one too wide to be a person is searched again without its wall's
+    # points (within wall_tolerance_m + 1 cm x range² of the vertical plane holding most of it):
+    # a performer close to a wall, joined to it by noise or flying pixels. None: no second search.
+    wall_tolerance_m: float | None = 0.05
     # Flat faces: a cluster with more than flat_share of its points within flat_tolerance_m of one
     # plane (a box, shelves, a figure of boxes) scores in proportion to the share off it, down to
     # flat_weight (``person_clusters.plane_share``). None: no such test.
