@@ -61,13 +61,14 @@ def plane_share(pts: np.ndarray, tolerance_m: float, max_points: int = 400, hypo
     return float(inliers.max()) / n
 
 
-def wall_inliers(pts: np.ndarray, eye_xz: np.ndarray, tolerance_m: float, max_points: int = 400,
-                 hypotheses: int = 48) -> np.ndarray:
+def wall_inliers(pts: np.ndarray, eye_xz: np.ndarray, tolerance_m: float, min_width_m: float,
+                 max_points: int = 400, hypotheses: int = 48) -> np.ndarray:
     """(M,) bool: the points (3, M) of the vertical plane holding most of them, within
     ``tolerance_m`` + 1 cm x range² of it (the range from ``eye_xz``: depth noise grows with
-    its square). A vertical plane is a line on the floor, so each hypothesis is the line through
-    two points at least 30 cm apart (RANSAC on at most ``max_points``, every k-th, fixed seed:
-    the same cluster always gives the same plane)."""
+    its square), when they span at least ``min_width_m`` along it (a wall, not the face of a
+    box a performer stands beside); else none. A vertical plane is a line on the floor, so each
+    hypothesis is the line through two points at least 30 cm apart (RANSAC on at most
+    ``max_points``, every k-th, fixed seed: the same cluster always gives the same plane)."""
     xz = np.stack([pts[0], pts[2]], axis=1).astype(np.float64)
     m = len(xz)
     if m < 10:
@@ -85,7 +86,12 @@ def wall_inliers(pts: np.ndarray, eye_xz: np.ndarray, tolerance_m: float, max_po
     normals = np.stack([-d[ok, 1], d[ok, 0]], axis=1) / length[ok, None]
     offsets = -np.einsum("ij,ij->i", normals, a[ok])
     best = int(np.argmax((np.abs(sub @ normals.T + offsets) <= sub_tol[:, None]).sum(0)))
-    return np.abs(xz @ normals[best] + offsets[best]) <= tol
+    inliers = np.abs(xz @ normals[best] + offsets[best]) <= tol
+    if inliers.sum() < 10:
+        return np.zeros(m, bool)
+    along = xz[inliers] @ np.array([normals[best, 1], -normals[best, 0]])
+    lo, hi = _quantiles(along, (0.02, 0.98))
+    return inliers if hi - lo >= min_width_m else np.zeros(m, bool)
 
 
 def _score(base: float, flat: float, motion_weight: float | None, apart: float | None) -> float:
@@ -120,8 +126,9 @@ to a cluster's own extent. pull: whether the previous person's position holds ba
 only candidates moving no more than it, so that a first pick of still clutter gives way to a
 performer who moves (the tracked cluster's half threshold applies either way). split_walls: when
 no candidate passes, each cluster too wide to be a person loses the points of its wall (a
-vertical plane holding most of it, ``wall_inliers``) and what is left is searched again: a
-performer close to a wall, joined to it by noise or flying pixels between them."""
+vertical plane holding most of it, ``wall_inliers``) and what is left is searched again for a
+cluster that moves (any, before motion is known): a performer close to a wall, joined to it by
+noise or flying pixels between them, and not the clutter against it."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -192,8 +199,8 @@ performer close to a wall, joined to it by noise or flying pixels between them."
             if k:
                 break  # candidates come by decreasing bound: none of the rest can score higher
             continue
-        if lab == 0 or counts[lab] < min_points:
-            continue
+        if lab == 0 or counts[lab] < min_points or (not split_walls and weight[lab] <= cfg.static_weight):
+            continue  # (split off a wall: only what moves, when motion is known)
         # The component's box: its seed cells' box grown by the dilation, within the crop.
         si, sj = it[seed_label == lab], jt[seed_label == lab]
         b_i0, b_i1 = max(int(si.min()) - 1, 0), min(int(si.max()) + 1, crop.shape[1] - 1)
@@ -246,7 +253,7 @@ performer close to a wall, joined to it by noise or flying pixels between them."
     if best is None and split_walls and cfg.wall_tolerance_m is not None:
         for lab in too_wide:
             idx = np.flatnonzero(point_label == lab)
-            rest = idx[~wall_inliers(pts[:, idx], eye_xz, cfg.wall_tolerance_m)]
+            rest = idx[~wall_inliers(pts[:, idx], eye_xz, cfg.wall_tolerance_m, cfg.max_footprint_m)]
             if len(rest) < min_points or len(rest) > len(idx) // 2:
                 continue  # no wall holding most of it
             def part(a: np.ndarray | None) -> np.ndarray | None:
