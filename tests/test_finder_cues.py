@@ -9,7 +9,7 @@ from live.core.frames import DepthFrame
 from live.core.rotations import angle_deg
 from live.core.skeleton import default_rest_joints
 from models.skeleton.ground import LEVEL_UP, find_wall
-from models.skeleton.person_clusters import find_person_cluster, plane_share
+from models.skeleton.person_clusters import find_person_cluster, plane_share, wall_inliers
 from models.skeleton.preprocess import PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
@@ -172,3 +172,12 @@ def test_a_performer_joined_to_the_wall_behind_them_is_split_off_it():
     alone = find_person_cluster(person.astype(np.float32), eye, 120, PreprocessConfig(), None)
     assert alone is not None
     assert found[wall.shape[1]:wall.shape[1] + person.shape[1]].mean() >= alone[0].mean() - 0.01
+
+
+def test_the_face_of_a_box_is_no_wall():
+    rng = np.random.default_rng(4)
+    face = np.stack([rng.uniform(-0.45, 0.45, 2000), rng.uniform(0.0, 0.8, 2000), rng.normal(-3.0, 0.01, 2000)])
+    wall = np.stack([rng.uniform(-2.0, 2.0, 2000), rng.uniform(0.0, 2.5, 2000), rng.normal(-3.0, 0.01, 2000)])
+    eye = np.array([0.0, 1.0])
+    assert not wall_inliers(face.astype(np.float32), eye, 0.05, 1.8).any()  # 0.9 m wide: cutting it cut the performer
+    assert wall_inliers(wall.astype(np.float32), eye, 0.05, 1.8).mean() > 0.99

@@ -256,10 +256,9 @@ noise or flying pixels between them, and not the clutter against it."""
             rest = idx[~wall_inliers(pts[:, idx], eye_xz, cfg.wall_tolerance_m, cfg.max_footprint_m)]
             if len(rest) < min_points or len(rest) > len(idx) // 2:
                 continue  # no wall holding most of it
-            def part(a: np.ndarray | None) -> np.ndarray | None:
-                return None if a is None else a[rest]
-            got = find_person_cluster(pts[:, rest], eye_xz, min_points, cfg, last_center, part(moving), part(cut_below),
-                                      part(cut_above), floor_known, pull, split_walls=False)
+            moving_r, below_r, above_r = (None if a is None else a[rest] for a in (moving, cut_below, cut_above))
+            got = find_person_cluster(pts[:, rest], eye_xz, min_points, cfg, last_center, moving_r, below_r, above_r,
+                                      floor_known, pull, split_walls=False)
             if got is not None:
                 sel = np.zeros(pts.shape[1], bool)
                 sel[rest[got[0]]] = True
