@@ -1,7 +1,7 @@
 """Depth from another renderer: the skeleton stage judged on depth it did not make.
 
     python -m research.other_renderer [--cases 32] [--frames 16] [--seed 0] [--models A.onnx ...]
-        [--lag 2] [--temporal T.onnx ...] [--json FILE] [--figure docs/img/other_renderer.png]
+        [--lag 2] [--temporal T.onnx ...] [--json FILE] [--figure FILE (seed 0: docs/img/other_renderer.png)]
         [--replay-check 1]
 
 Held-out content only: CMU clips of the held-out subjects and the held-out bodies
@@ -390,7 +390,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--temporal", type=Path, nargs="+", default=[],
                     help="other temporal models (.onnx) also run behind the first skeleton model, as more rows")
     ap.add_argument("--json", type=Path, default=None)
-    ap.add_argument("--figure", type=Path, default=DEFAULT_FIGURE)
+    ap.add_argument("--figure", type=Path, default=None,
+                    help="where to draw six cases (default: the docs' figure for seed 0, the cache for tuning seeds)")
     ap.add_argument("--replay-check", type=int, default=1, help="cases also run through `livecap replay`")
     args = ap.parse_args(argv)
     models = args.models or [p for p in (assets.weight("skeleton.onnx"), PREVIOUS_MODEL) if p.is_file()]
@@ -428,10 +429,12 @@ def main(argv: list[str] | None = None) -> dict:
     picks = [i for i in picks if i is not None]
     errors = per_case[models[0].name]
     worst = sorted((i for i in range(len(cases)) if i not in picks), key=lambda i: -errors[cases[i].name].get("mpjpe_mm", 0))
-    picks += [next((i for i in worst if errors[cases[i].name]["elsewhere"]), worst[0])]
-    picks += [next(i for i in worst if i not in picks)]
-    draw_figure(args.figure, [(cases[i], rendered[i][0], shipped[i]) for i in picks])
-    print(f"wrote {args.figure}")
+    # The worst case with frames elsewhere (or the worst), then the next worst: when there are any.
+    picks += [next((i for i in worst if errors[cases[i].name]["elsewhere"]), worst[0])] if worst else []
+    picks += [i for i in worst if i not in picks][:1]
+    figure = args.figure or (DEFAULT_FIGURE if args.seed == 0 else CACHE / f"figure_seed{args.seed}.png")
+    draw_figure(figure, [(cases[i], rendered[i][0], shipped[i]) for i in picks])
+    print(f"wrote {figure}")
     report = {"command": "python -m research.other_renderer " + shlex.join(argv if argv is not None else sys.argv[1:]),
               "cases": [{**asdict(c), **d["camera"], "room": d["room"]} for c, (d, _) in zip(cases, rendered)],
               "results": results, "per_case": per_case,
