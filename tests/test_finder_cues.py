@@ -74,37 +74,32 @@ def _scene_frame(k: int, performer_z: float) -> DepthFrame:
                       depth_mm=cam.render(verts, faces, room=Room(width=9.0, depth=9.0)), intrinsics=cam.intrinsics)
 
 
-def test_a_first_pick_of_still_clutter_gives_way_to_the_performer_who_moves():
-    finder = PersonFinder()
+def _picks(start_z: float, speed: float, config: PreprocessConfig = PreprocessConfig()) -> list[float]:
+    """The x of the person found in 24 frames of ``_scene_frame``: the performer still for a
+    moment at start_z, then walking at ``speed`` m/s along z (+: toward the camera)."""
+    finder = PersonFinder(config)
     picks = []
     for k in range(24):
-        # Still for a moment, then walking toward the camera at 0.9 m/s.
-        cloud = finder.find(_scene_frame(k, -2.0 + 0.9 * max(k - 4, 0) / 30.0))
+        cloud = finder.find(_scene_frame(k, start_z + speed * max(k - 4, 0) / 30.0))
         assert cloud is not None
         picks.append(cloud.to_world[0, 3])
+    return picks
+
+
+def test_a_first_pick_of_still_clutter_gives_way_to_the_performer_who_moves():
+    picks = _picks(-2.0, 0.9)
     assert picks[0] < -0.9  # the bigger, nearer figure while nothing moves
     # The performer once they move (the previous person's pull kept the figure to the end: it
     # held back a moving performer 2 m from it as much as still clutter).
     assert all(x > 0.7 for x in picks[16:])
 
 
-def _walking_away_picks(config: PreprocessConfig) -> list[float]:
-    finder = PersonFinder(config)
-    picks = []
-    for k in range(24):
-        # Still for a moment, then walking away from the camera at 0.9 m/s: nothing of them comes nearer.
-        cloud = finder.find(_scene_frame(k, -1.6 - 0.9 * max(k - 4, 0) / 30.0))
-        assert cloud is not None
-        picks.append(cloud.to_world[0, 3])
-    return picks
-
-
 def test_a_performer_walking_away_moves_too():
-    picks = _walking_away_picks(PreprocessConfig())
-    assert picks[0] < -0.9  # the bigger, nearer figure while nothing moves
+    picks = _picks(-1.6, -0.9)  # nothing of them comes nearer
+    assert picks[0] < -0.9
     assert all(x > 0.7 for x in picks[16:])
     # Counting only what came nearer, the still figure keeps them.
-    assert all(x < -0.9 for x in _walking_away_picks(PreprocessConfig(motion_recede_m=None))[16:])
+    assert all(x < -0.9 for x in _picks(-1.6, -0.9, PreprocessConfig(motion_recede_m=None))[16:])
 
 
 def test_motion_counts_what_came_nearer_not_the_wall_a_performer_uncovers():
@@ -181,3 +176,4 @@ def test_the_face_of_a_box_is_no_wall():
     eye = np.array([0.0, 1.0])
     assert not wall_inliers(face.astype(np.float32), eye, 0.05, 1.8).any()  # 0.9 m wide: cutting it cut the performer
     assert wall_inliers(wall.astype(np.float32), eye, 0.05, 1.8).mean() > 0.99
+

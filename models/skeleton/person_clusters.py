@@ -108,7 +108,7 @@ def _score(base: float, flat: float, motion_weight: float | None, apart: float |
 def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cfg: PreprocessConfig,
                         last_center: np.ndarray | None, moving: np.ndarray | None = None,
                         cut_below: np.ndarray | None = None, cut_above: np.ndarray | None = None,
-                        floor_known: bool = True, pull: bool = True, split_walls: bool = True
+                        floor_known: bool = True, pull: bool = True, wall_cut: bool = False
                         ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None:
     """The person among world points (3, M) above the floor: (bool mask (M,) of its points,
     the cell label grid, its label, the grid origin (x, z), its points (3, P)), or None.
@@ -124,11 +124,12 @@ def find_person_cluster(pts: np.ndarray, eye_xz: np.ndarray, min_points: int, cf
 to a cluster's own extent. pull: whether the previous person's position holds back every other candidate
 (score / (1 + distance)); False while that person has not been seen moving: it then holds back
 only candidates moving no more than it, so that a first pick of still clutter gives way to a
-performer who moves (the tracked cluster's half threshold applies either way). split_walls: when
-no candidate passes, each cluster too wide to be a person loses the points of its wall (a
-vertical plane holding most of it, ``wall_inliers``) and what is left is searched again for a
-cluster that moves (any, before motion is known): a performer close to a wall, joined to it by
-noise or flying pixels between them, and not the clutter against it."""
+performer who moves (the tracked cluster's half threshold applies either way). When no
+candidate passes, each cluster too wide to be a person loses the points of its wall (a vertical
+plane holding most of it, ``wall_inliers``) and what is left is searched again (``wall_cut``:
+this second search, which cuts no further and takes only clusters that move, any before motion
+is known): a performer close to a wall, joined to it by noise or flying pixels between them,
+and not the clutter against it."""
     if pts.shape[1] < min_points:
         return None
     cells = int(2 * cfg.grid_half_extent_m / cfg.cell_m)
@@ -199,7 +200,7 @@ noise or flying pixels between them, and not the clutter against it."""
             if k:
                 break  # candidates come by decreasing bound: none of the rest can score higher
             continue
-        if lab == 0 or counts[lab] < min_points or (not split_walls and weight[lab] <= cfg.static_weight):
+        if lab == 0 or counts[lab] < min_points or (wall_cut and weight[lab] <= cfg.static_weight):
             continue  # (split off a wall: only what moves, when motion is known)
         # The component's box: its seed cells' box grown by the dilation, within the crop.
         si, sj = it[seed_label == lab], jt[seed_label == lab]
@@ -250,7 +251,7 @@ noise or flying pixels between them, and not the clutter against it."""
         score = _score(base, flat, moved, apart)
         if score > best_score:
             best, best_score = (sel, labels_flat[:-1].reshape(cells, cells), int(lab), origin, cluster), score
-    if best is None and split_walls and cfg.wall_tolerance_m is not None:
+    if best is None and not wall_cut and cfg.wall_tolerance_m is not None:
         for lab in too_wide:
             idx = np.flatnonzero(point_label == lab)
             rest = idx[~wall_inliers(pts[:, idx], eye_xz, cfg.wall_tolerance_m, cfg.max_footprint_m)]
@@ -258,7 +259,7 @@ noise or flying pixels between them, and not the clutter against it."""
                 continue  # no wall holding most of it
             moving_r, below_r, above_r = (None if a is None else a[rest] for a in (moving, cut_below, cut_above))
             got = find_person_cluster(pts[:, rest], eye_xz, min_points, cfg, last_center, moving_r, below_r, above_r,
-                                      floor_known, pull, split_walls=False)
+                                      floor_known, pull, wall_cut=True)
             if got is not None:
                 sel = np.zeros(pts.shape[1], bool)
                 sel[rest[got[0]]] = True
