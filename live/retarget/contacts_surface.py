@@ -20,6 +20,9 @@ counts as outside: that side is the neighbour's, which covers it.
 ``PROBE_COUNT`` probe points are spread by farthest-point sampling over each forearm's skin and
 each hand's convex hull; they are posed by skinning, like the mesh.
 
+Queries run compiled (live/retarget/contacts_measure.py): a frame measures a few hundred probes
+two to five times, and numpy's per-call overhead on arrays that small was most of the stage.
+
 A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
 parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
 performer's estimated skeleton needs no new grids. Built models are kept in memory and in the
@@ -39,6 +42,7 @@ import numpy as np
 from live.core import assets
 from live.core.errors import UserInputError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, pelvis_height
+from live.retarget.contacts_measure import measure_gaps, sample_points
 
 #: Grid cell (m) and the margin of a part's grid around its skin (m): more than every contact
 #: or clearance distance in use.
@@ -162,16 +166,15 @@ class SurfaceModel:
     cell: float
 
     def __post_init__(self) -> None:
-        # Per part: the 8 cell corners' row offsets and the strides, for one np.take per query
-        # (a dozen times faster than fancy indexing of the (M, 4) array); the grids in float64,
-        # so that the blend is one matmul without conversions.
+        # The arrays the compiled queries (live/retarget/contacts_measure.py) read, in the types
+        # they are compiled for: per part the strides of its grid's rows, the last cell corner.
         dims = np.asarray(self.dims, np.int64)
         sz, syz = dims[:, 2], dims[:, 1] * dims[:, 2]
-        corners = np.stack([np.zeros_like(sz), sz, syz, syz + sz], axis=1)
-        object.__setattr__(self, "_corners", np.concatenate([corners, corners + 1], axis=1))
         object.__setattr__(self, "_strides", np.stack([syz, sz, np.ones_like(sz)], axis=1).astype(np.float64))
         object.__setattr__(self, "_top", dims - 1.000001)
         object.__setattr__(self, "_data", np.asarray(self.data, np.float64))
+        object.__setattr__(self, "_skin_joints", np.ascontiguousarray(self.skin_joints, np.int64))
+        object.__setattr__(self, "_skin_weights", np.ascontiguousarray(self.skin_weights, np.float64))
         by_joint = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
         object.__setattr__(self, "vertex_region", by_joint[np.asarray(self.skin_joints, np.int64)[:, 0]])
         dense = np.zeros((len(self.vertices), len(self.rest_joints)))
@@ -187,9 +190,7 @@ class SurfaceModel:
         joints = np.array([JOINT_INDEX[p.joint] for p in PROBES], np.int64)
         rel = [self.vertices[v] - self.rest_joints[j] for v, j in zip(self.probes, joints)]
         mid = np.array([0.5 * (r.min(0) + r.max(0)) for r in rel])
-        every = np.concatenate(self.probes)
-        object.__setattr__(self, "probe_weights", dense[every])
-        object.__setattr__(self, "probe_rest", np.asarray(self.vertices, np.float64)[every])
+        object.__setattr__(self, "probe_vertices", np.ascontiguousarray(np.stack(self.probes), np.int64))
         object.__setattr__(self, "probe_joint", joints)
         object.__setattr__(self, "probe_centre", mid)
         object.__setattr__(self, "probe_radius", np.array([np.sqrt(((r - c) ** 2).sum(1)).max() for r, c in zip(rel, mid)]))
@@ -199,23 +200,8 @@ class SurfaceModel:
         points relative to the part's joint in the model's rest units, and the vertex nearest
         each point's closest skin point (Q,). Beyond a grid's edge the distance grows by the
         distance to the edge (continuous; the margin already puts it past every contact distance)."""
-        take = np.take
-        g = (local - take(self.lo, parts, axis=0)) * (1.0 / self.cell)
-        clipped = np.clip(g, 0.0, take(self._top, parts, axis=0))
-        beyond = g - clipped
-        i0 = np.floor(clipped)
-        f = clipped - i0
-        base = take(self.base, parts)
-        strides = take(self._strides, parts, axis=0)
-        row = base + np.einsum("qi,qi->q", i0, strides).astype(np.int64)
-        vals = take(self._data, row[:, None] + take(self._corners, parts, axis=0), axis=0)  # (Q, 8, 4)
-        fx, fy, fz = f[:, 0:1], f[:, 1:2], f[:, 2:3]
-        wxy = np.concatenate([(1 - fx) * (1 - fy), (1 - fx) * fy, fx * (1 - fy), fx * fy], axis=1)
-        w = np.concatenate([wxy * (1 - fz), wxy * fz], axis=1)  # corners z=0 then z=1
-        out = np.matmul(w[:, None, :], vals)[:, 0]
-        out[:, 0] += np.sqrt(np.einsum("qi,qi->q", beyond, beyond)) * self.cell
-        near_row = base + np.einsum("qi,qi->q", np.rint(clipped), strides).astype(np.int64)
-        return out, take(self.nearest, near_row)
+        return sample_points(self._data, self.nearest, self.lo, self._top, self._strides, self.base, float(self.cell),
+                             np.ascontiguousarray(parts, np.int64), np.ascontiguousarray(local, np.float64))
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,27 +255,6 @@ class BodySurface:
         grad = np.matmul(out[..., 1:], np.swapaxes(rot, 1, 2))
         norm = np.sqrt(np.einsum("kni,kni->kn", grad, grad))
         return out[..., 0] * self.scale, grad / np.maximum(norm, 1e-9)[..., None], nearest.reshape(k, n)
-
-    def skin_offsets(self, glob: np.ndarray, pos: np.ndarray, vertices: np.ndarray, parts: np.ndarray,
-                     transforms: np.ndarray | None = None) -> np.ndarray:
-        """(N, 3): how far skinning puts vertices (N,) from where their parts (N,) moved rigidly
-        would: what a rigid part's distance misses where joints blend (a bent spine's belly)."""
-        m = self.model
-        frames = np.take(m.frames, parts)
-        rest = (np.take(m.vertices, vertices, axis=0) - np.take(m.rest_joints, frames, axis=0)) * self.scale
-        rigid = np.einsum("nij,nj->ni", np.take(glob, frames, axis=0), rest) + np.take(pos, frames, axis=0)
-        return self.skin(glob, pos, vertices, transforms) - rigid
-
-    def near_parts(self, glob: np.ndarray, pos: np.ndarray, centre: np.ndarray, radius: float,
-                   parts: tuple[int, ...], reach: float) -> np.ndarray:
-        """The parts among ``parts`` whose bounding sphere comes within ``reach`` of a sphere
-        (centre (3,), radius) in a pose: the broad phase before ``distances``."""
-        m = self.model
-        idx = np.asarray(parts, np.int64)
-        frames = m.frames[idx]
-        centres = pos[frames] + np.einsum("kij,kj->ki", glob[frames], m.centre[idx] * self.scale)
-        gap = np.sqrt(((centres - centre) ** 2).sum(-1)) - m.radius[idx] * self.scale - radius
-        return idx[gap < reach]
 
 
 # ------------------------------------------------------------------------------------- building
@@ -608,8 +573,7 @@ class Gaps:
 def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.ndarray, reach: np.ndarray | float,
             tau: float, band: np.ndarray | float = BAND) -> Gaps:
     """Gaps of probe sets (indices into PROBES) to the regions they are tested against, in a pose
-    (glob (22, 3, 3), pos (22, 3)), all in one batch: numpy's per-call cost, not arithmetic, is
-    what a frame spends here.
+    (glob (22, 3, 3), pos (22, 3)), in one compiled pass (live/retarget/contacts_measure.py).
 
     Broad phase: a part is measured when its bounding sphere comes within ``reach`` (per probe
     set or one value) of the probe set's, and then only at the probes within ``band`` (per probe
@@ -622,75 +586,12 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     its direction and point are softmin-weighted (length ``tau``), so that they change
     continuously as the closest probe or part changes. Regions with no probe that near are left out."""
     m = surface.model
-    probes = np.asarray(probes, np.int64)
-    reach_of = np.broadcast_to(np.asarray(reach, np.float64), (len(probes),))
-    part_centre = pos[m.frames] + np.einsum("kij,kj->ki", glob[m.frames], m.centre * surface.scale)
-    # First without skinning: each probe set's sphere carried rigidly by its joint, grown by
-    # SKIN_SLACK for what skinning moves it by; a frame with nothing near ends here.
-    joint = m.probe_joint[probes]
-    rigid = pos[joint] + np.einsum("kij,kj->ki", glob[joint], m.probe_centre[probes] * surface.scale)
-    apart = np.sqrt(((rigid[:, None] - part_centre[None]) ** 2).sum(-1)) - (m.probe_radius[probes] * surface.scale
-                                                                            + SKIN_SLACK)[:, None] \
-        - m.radius[None] * surface.scale
-    if not np.any(ALLOWED[probes] & (apart < reach_of[:, None])):
-        return Gaps.empty()
-    count = len(m.probes[0])
-    transforms = surface.transforms(glob, pos)
-    if len(probes) == len(PROBES) and np.array_equal(probes, _ALL_PROBES):
-        # All probe sets (the usual call): their weights and rest positions gathered once.
-        blend = m.probe_weights @ transforms
-        v = m.probe_rest
-        pts = (blend[:, 0:9:3] * v[:, 0:1] + blend[:, 1:9:3] * v[:, 1:2] + blend[:, 2:9:3] * v[:, 2:3]
-               + blend[:, 9:])
-    else:
-        pts = surface.skin(glob, pos, np.concatenate([m.probes[i] for i in probes]), transforms)
-    pts = pts.reshape(len(probes), count, 3)
-    centre = pts.mean(1)
-    spread = pts - centre[:, None]
-    radius = np.sqrt(np.einsum("snk,snk->sn", spread, spread).max(1))
-    apart = np.sqrt(((centre[:, None] - part_centre[None]) ** 2).sum(-1)) - radius[:, None] \
-        - m.radius[None] * surface.scale
-    near = ALLOWED[probes] & (apart < reach_of[:, None])
-    which, parts = np.nonzero(near)  # by probe set, then part
-    if not len(parts):
-        return Gaps.empty()
-    frames = m.frames[parts]
-    rot = glob[frames]  # (P, 3, 3)
-    row_pts = pts[which]  # (P, N, 3)
-    local = np.matmul(row_pts - pos[frames][:, None, :], rot) * (1.0 / surface.scale)
-    # Only probes within the band of a part's skin box are sampled; the others are too far to count.
-    outside = np.abs(local - m.box_centre[parts][:, None, :]) - m.box_half[parts][:, None, :]
-    worst = np.maximum(np.maximum(outside[..., 0], outside[..., 1]), outside[..., 2])
-    r_idx, n_idx = np.nonzero(worst < np.broadcast_to(np.asarray(band, np.float64), (len(probes),))[which][:, None])
-    if not len(r_idx):
-        return Gaps.empty()
-    out, nearest = m.sample(parts[r_idx], local[r_idx, n_idx])
-    region = m.vertex_region[nearest]
-    probe_of = probes[which[r_idx]]
-    keep = REGION_ALLOWED[probe_of, region]
-    if not keep.any():
-        return Gaps.empty()
-    # Entries grouped by (probe set, region) for the reductions.
-    key = which[r_idx] * len(REGIONS) + region
-    order = np.flatnonzero(keep)[np.argsort(key[keep], kind="stable")]
-    key, r_idx, n_idx, out, nearest = key[order], r_idx[order], n_idx[order], out[order], nearest[order]
-    grad = np.einsum("qij,qj->qi", rot[r_idx], out[:, 1:])
-    n = grad / np.maximum(np.sqrt(np.einsum("qi,qi->q", grad, grad)), 1e-9)[:, None]
-    dist = out[:, 0] * surface.scale
-    starts = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1])))
-    sizes = np.diff(np.append(starts, len(key)))
-    low = np.repeat(np.minimum.reduceat(dist, starts), sizes)
-    # Skinning's correction where the softmin will look (elsewhere it weighs nothing).
-    look = np.flatnonzero(dist < low + 12.0 * tau)
-    offsets = surface.skin_offsets(glob, pos, nearest[look], parts[r_idx[look]], transforms)
-    dist[look] -= np.einsum("qi,qi->q", n[look], offsets)
-    # The gap: the nearest probe's distance (continuous; a softmin-weighted mean would sit up to
-    # tau above it where many probes lie about as near, a flat hand on a hip, and let the hand
-    # sink that far). Direction and point: softmin-weighted, continuous as the nearest changes.
-    gap = np.minimum.reduceat(dist, starts)
-    w = np.exp(-(dist - np.repeat(gap, sizes)) * (1.0 / tau))
-    total = np.add.reduceat(w, starts)
-    direction = np.add.reduceat(w[:, None] * n, starts, axis=0)
-    direction /= np.maximum(np.sqrt(np.einsum("gi,gi->g", direction, direction)), 1e-9)[:, None]
-    point = np.add.reduceat(w[:, None] * row_pts[r_idx, n_idx], starts, axis=0) / total[:, None]
-    return Gaps(probes[which[r_idx[starts]]], key[starts] % len(REGIONS), gap, direction, point)
+    probes = np.ascontiguousarray(probes, np.int64)
+    reach_of = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (len(probes),)))
+    band_of = np.ascontiguousarray(np.broadcast_to(np.asarray(band, np.float64), (len(probes),)))
+    return Gaps(*measure_gaps(np.ascontiguousarray(glob, np.float64), np.ascontiguousarray(pos, np.float64),
+                              float(surface.scale), probes, reach_of, band_of, float(SKIN_SLACK), float(tau),
+                              m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
+                              m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
+                              m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
+                              m._skin_joints, m._skin_weights))
