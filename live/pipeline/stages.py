@@ -87,10 +87,10 @@ class RetargetStage:
             return None
         from live.core.errors import UserInputError
         from live.retarget.contacts_retargeter import PerformerSurfaces
-        from live.retarget.contacts_surface import body_surface
+        from live.retarget.contacts_surface import body_surface, warm_up
 
         try:
-            return [body_surface(self.avatar), PerformerSurfaces()]
+            surfaces = [body_surface(self.avatar), PerformerSurfaces()]
         except UserInputError as exc:
             if mode == "on":
                 raise
@@ -98,6 +98,8 @@ class RetargetStage:
 
             logging.getLogger(__name__).warning("self-contacts off: %s", exc)
             return None
+        warm_up(surfaces[0])
+        return surfaces
 
     @property
     def contacts(self) -> bool:

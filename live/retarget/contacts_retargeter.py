@@ -26,7 +26,7 @@ from live.core.timing import FrameClock, frame_interval_s
 from live.retarget.analytic import LIMBS, RestInfo, solve_globals
 from live.retarget.contacts_keep import ContactKeeper
 from live.retarget.contacts_self import ContactSettings, SelfContactDetector, SourceContacts
-from live.retarget.contacts_surface import PROBES, BodySurface, body_surface, measure
+from live.retarget.contacts_surface import BodySurface, body_surface
 from live.retarget.interface import Retargeter, step_frame
 
 #: Bodies of average build a performer's surface is fitted from (training bodies of the library:
@@ -79,10 +79,6 @@ class ContactRetargeter:
         self.detector = SelfContactDetector(settings, self.keeper.held_probes)
         self.set_source_rest(source_rest)
         self.reset()
-        # The gaps' kernel compiled (or read from numba's cache) now, not on the first frame with
-        # a hand near the body: a few seconds the first time on a machine.
-        measure(target, np.broadcast_to(np.eye(3), (NUM_JOINTS, 3, 3)), target_rest, np.arange(len(PROBES)), 0.0,
-                settings.tau)
 
     def set_source_rest(self, rest_joints: np.ndarray) -> None:
         """New performer proportions: passed to the inner retargeter, the performer's surface resized."""

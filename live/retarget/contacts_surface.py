@@ -527,6 +527,14 @@ def surface_model(body) -> SurfaceModel:
     return model
 
 
+def warm_up(surface: BodySurface) -> None:
+    """Compile ``measure``'s kernel, or read it from numba's cache: a few seconds the first time on
+    a machine, then a fraction of one per process; better spent before a stream than on its
+    first frame with a hand near the body."""
+    m = surface.model
+    measure(surface, np.broadcast_to(np.eye(3), (len(m.rest_joints), 3, 3)), m.rest_joints, _ALL_PROBES, 0.0, 0.003)
+
+
 def body_surface(body) -> BodySurface:
     """The surface of a body (a live.body.Body with a mesh) on its own rest skeleton."""
     return BodySurface(surface_model(body))
