@@ -67,7 +67,7 @@ def _skin(v, transforms, vertices, skin_joints, skin_weights, i):
 
 
 @njit(cache=True, nogil=True)
-def measure_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
+def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
                  probe_vertices, probe_joint, probe_centre, probe_radius, allowed, region_allowed,
                  frames, part_centre_rest, part_radius, box_centre, box_half,
                  data, nearest, lo, top, strides, base, cell, vertex_region,

@@ -42,7 +42,7 @@ import numpy as np
 from live.core import assets
 from live.core.errors import UserInputError
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES, pelvis_height
-from live.retarget.contacts_measure import measure_gaps, sample_points
+from live.retarget.contacts_measure import probe_gaps, sample_points
 
 #: Grid cell (m) and the margin of a part's grid around its skin (m): more than every contact
 #: or clearance distance in use.
@@ -597,9 +597,9 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     probes = np.ascontiguousarray(probes, np.int64)
     reach_of = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (len(probes),)))
     band_of = np.ascontiguousarray(np.broadcast_to(np.asarray(band, np.float64), (len(probes),)))
-    return Gaps(*measure_gaps(np.ascontiguousarray(glob, np.float64), np.ascontiguousarray(pos, np.float64),
-                              float(surface.scale), probes, reach_of, band_of, float(SKIN_SLACK), float(tau),
-                              m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
-                              m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
-                              m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
-                              m._skin_joints, m._skin_weights))
+    return Gaps(*probe_gaps(np.ascontiguousarray(glob, np.float64), np.ascontiguousarray(pos, np.float64),
+                            float(surface.scale), probes, reach_of, band_of, float(SKIN_SLACK), float(tau),
+                            m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
+                            m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
+                            m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
+                            m._skin_joints, m._skin_weights))
