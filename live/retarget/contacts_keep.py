@@ -25,8 +25,8 @@ After any retargeter (rotation copy or the network), on the avatar's own surface
 4. **In time.** Each frame starts where the last one ended; the prior the steps are damped
    toward is that correction let go with ``release_s``, which the arms follow out once nothing
    holds them (at the damped steps' pace, 2-5 % of the correction a frame at 30 fps: slower than
-   ``release_s``, and so slower to let a hand follow the retargeter back into a body). Up to _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep
-   inside). The correction's change is rate-limited: its elbows and wrists move at most
+   ``release_s``, and so slower to let a hand follow the retargeter back into a body). Up to
+   _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep inside). The correction's change is rate-limited: its elbows and wrists move at most
    MAX_HAND_SPEED plus INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while
    the hand is still (a contact starting, a hand slipping between thigh and belly) are followed
    smoothly, and a hand that strikes or claps fast is still pushed out. An arm that the carried
