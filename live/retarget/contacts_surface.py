@@ -21,7 +21,7 @@ counts as outside: that side is the neighbour's, which covers it.
 each hand's convex hull; they are posed by skinning, like the mesh.
 
 Queries run compiled (live/retarget/contacts_measure.py): a frame measures a few hundred probes
-two to five times, and numpy's per-call overhead on arrays that small was most of the stage.
+two to five times, and numpy's per-call overhead on arrays that small would be most of the stage.
 
 A surface built for one rest skeleton serves a performer of another size (``BodySurface.scale``):
 parts and probes are kept relative to their joints and scaled about them, so a body fitted to a
