@@ -143,16 +143,23 @@ class _Posed:
         self.bend0 = math.atan2(v3.dot(v3.cross(cb, ab), self.n0), v3.dot(ab, cb))
         self.fore0 = cb
         self.upper0 = ab
+        self._last: tuple = (None, None)  # the last state posed and its pose
 
     def pose(self, x: np.ndarray) -> tuple:
         """(upper arm rotation R, flexion rotation F, elbow, wrist, flex axis) of state x (4,):
         x[:3] the whole arm's rotation vector (world), x[3] the elbow's straightening (rad)."""
-        angle = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
-        r = v3.axis_angle((x[0] / angle, x[1] / angle, x[2] / angle), angle) if angle > 1e-12 else v3.IDENTITY
+        key = tuple(x.tolist())  # plain floats: numpy scalars are slower in this arithmetic
+        if key == self._last[0]:  # a step's pose right after the same state was applied
+            return self._last[1]
+        x0, x1, x2, x3 = key
+        angle = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        r = v3.axis_angle((x0 / angle, x1 / angle, x2 / angle), angle) if angle > 1e-12 else v3.IDENTITY
         n = v3.mv(r, self.n0)
-        f = v3.mm(v3.axis_angle(n, float(x[3])), r) if x[3] != 0.0 else r
+        f = v3.mm(v3.axis_angle(n, x3), r) if x3 != 0.0 else r
         elbow = v3.add(self.s, v3.mv(r, self.upper0))
-        return r, f, elbow, v3.add(elbow, v3.mv(f, self.fore0)), n
+        posed = (r, f, elbow, v3.add(elbow, v3.mv(f, self.fore0)), n)
+        self._last = (key, posed)
+        return posed
 
 
 class ContactKeeper:
@@ -315,10 +322,9 @@ class ContactKeeper:
         """For points (K, 3) on arms arm_of (K,) (hand: moving with the wrist; else on the arm:
         forearm or upper arm, whichever segment is nearer): the levers about the shoulder and
         about the elbow (zero for the upper arm) and the flex axes."""
-        s = np.array([arms[a].s for a in arm_of]).reshape(-1, 3)
-        e = np.array([posed[a][2] for a in arm_of]).reshape(-1, 3)
-        w = np.array([posed[a][3] for a in arm_of]).reshape(-1, 3)
-        n = np.array([posed[a][4] for a in arm_of]).reshape(-1, 3)
+        # Per arm: shoulder, elbow, wrist, flex axis (2, 4, 3); then per point.
+        per_arm = np.array([[arms[a].s, posed[a][2], posed[a][3], posed[a][4]] for a in range(2)])[arm_of]
+        s, e, w, n = per_arm[:, 0], per_arm[:, 1], per_arm[:, 2], per_arm[:, 3]
         p = np.where(hand[:, None], w, points)
         upper = _segment_distance(p, s, e) < _segment_distance(p, e, w)
         about_elbow = np.where(upper[:, None] & ~hand[:, None], 0.0, p - e)
@@ -443,6 +449,7 @@ def _add_rows(jac: np.ndarray, arm_of: np.ndarray, about_shoulder: np.ndarray, a
     """Add to rows of jac (K, 8) how the gaps along direction (K, 3) grow with each arm's
     unknowns for points moved about the shoulder (levers (K, 3)) and the elbow (levers, axes)."""
     k = np.arange(len(arm_of))
+    by_arm = jac.reshape(len(jac), 2, 4)  # a view: rows, arm, unknown
     # n . (w x r) = w . (r x n); for the flexion w = theta * axis.
-    jac[k[:, None], 4 * arm_of[:, None] + np.arange(3)[None]] += sign * _cross(about_shoulder, direction)
-    jac[k, 4 * arm_of + 3] += sign * np.einsum("ki,ki->k", axis, _cross(about_elbow, direction))
+    by_arm[k, arm_of, :3] += sign * _cross(about_shoulder, direction)
+    by_arm[k, arm_of, 3] += sign * np.einsum("ki,ki->k", axis, _cross(about_elbow, direction))
