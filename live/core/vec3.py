@@ -70,14 +70,18 @@ def mtv(m: Mat, v: Vec) -> tuple[float, float, float]:
 
 def mtm(a: Mat, b: Mat) -> tuple[tuple[float, float, float], ...]:
     """A^T B."""
-    return mm(tuple(zip(*a)), b)
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    return mm(((a00, a10, a20), (a01, a11, a21), (a02, a12, a22)), b)
 
 
 def mm(a: Mat, b: Mat) -> tuple[tuple[float, float, float], ...]:
-    """A B."""
+    """A B (rows unrolled: these run thousands of times a frame, and a generator costs more than
+    the arithmetic)."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
     (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
-    return tuple((r[0] * b00 + r[1] * b10 + r[2] * b20, r[0] * b01 + r[1] * b11 + r[2] * b21,
-                  r[0] * b02 + r[1] * b12 + r[2] * b22) for r in a)
+    return ((a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21, a00 * b02 + a01 * b12 + a02 * b22),
+            (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21, a10 * b02 + a11 * b12 + a12 * b22),
+            (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21, a20 * b02 + a21 * b12 + a22 * b22))
 
 
 def columns(e1: Vec, e2: Vec, e3: Vec) -> tuple[tuple[float, float, float], ...]:
