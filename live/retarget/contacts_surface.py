@@ -595,8 +595,8 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     continuously as the closest probe or part changes. Regions with no probe that near are left out."""
     m = surface.model
     probes = np.ascontiguousarray(probes, np.int64)
-    reach_of = np.ascontiguousarray(np.broadcast_to(np.asarray(reach, np.float64), (len(probes),)))
-    band_of = np.ascontiguousarray(np.broadcast_to(np.asarray(band, np.float64), (len(probes),)))
+    reach_of, band_of = (np.full(len(probes), float(v)) if np.ndim(v) == 0 else np.ascontiguousarray(v, np.float64)
+                         for v in (reach, band))
     return Gaps(*probe_gaps(np.ascontiguousarray(glob, np.float64), np.ascontiguousarray(pos, np.float64),
                             float(surface.scale), probes, reach_of, band_of, float(SKIN_SLACK), float(tau),
                             m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
