@@ -26,10 +26,10 @@ After any retargeter (rotation copy or the network), on the avatar's own surface
    toward is that correction let go with ``release_s``, which the arms follow out once nothing
    holds them (at the damped steps' pace, 2-5 % of the correction a frame at 30 fps: slower than
    ``release_s``, and so slower to let a hand follow the retargeter back into a body). Up to
-   _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep inside). The correction's change is rate-limited: its elbows and wrists move at most
-   MAX_HAND_SPEED plus INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while
-   the hand is still (a contact starting, a hand slipping between thigh and belly) are followed
-   smoothly, and a hand that strikes or claps fast is still pushed out. An arm that the carried
+   _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep inside). The
+   correction's change is rate-limited: its elbows and wrists move at most MAX_HAND_SPEED plus
+   INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while the hand is still
+   (a contact starting, a hand slipping between thigh and belly) are followed smoothly, and a hand that strikes or claps fast is still pushed out. An arm that the carried
    correction holds deep inside the body, deeper than the retargeter's own pose would be, starts
    again from that pose. A frame with nothing near is left exactly as the retargeter made it.
 """
@@ -446,8 +446,9 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
 
 def _add_rows(jac: np.ndarray, arm_of: np.ndarray, about_shoulder: np.ndarray, about_elbow: np.ndarray,
               axis: np.ndarray, direction: np.ndarray, sign: float) -> None:
-    """Add to rows of jac (K, 8) how the gaps along direction (K, 3) grow with each arm's
-    unknowns for points moved about the shoulder (levers (K, 3)) and the elbow (levers, axes)."""
+    """Add to rows of jac (K, 8, C-contiguous: written through a (K, 2, 4) view) how the gaps
+    along direction (K, 3) grow with each arm's unknowns for points moved about the shoulder
+    (levers (K, 3)) and the elbow (levers, axes)."""
     k = np.arange(len(arm_of))
     by_arm = jac.reshape(len(jac), 2, 4)  # a view: rows, arm, unknown
     # n . (w x r) = w . (r x n); for the flexion w = theta * axis.
