@@ -29,9 +29,10 @@ After any retargeter (rotation copy or the network), on the avatar's own surface
    _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep inside). The
    correction's change is rate-limited: its elbows and wrists move at most MAX_HAND_SPEED plus
    INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while the hand is still
-   (a contact starting, a hand slipping between thigh and belly) are followed smoothly, and a hand that strikes or claps fast is still pushed out. An arm that the carried
-   correction holds deep inside the body, deeper than the retargeter's own pose would be, starts
-   again from that pose. A frame with nothing near is left exactly as the retargeter made it.
+   (a contact starting, a hand slipping between thigh and belly) are followed smoothly, and a
+   hand that strikes or claps fast is still pushed out. An arm that the carried correction holds
+   deep inside the body, deeper than the retargeter's own pose would be, starts again from that
+   pose. A frame with nothing near is left exactly as the retargeter made it.
 """
 
 from __future__ import annotations
