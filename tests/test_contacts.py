@@ -15,6 +15,7 @@ from live.core.errors import UserInputError
 from live.core.skeleton import JOINT_INDEX
 from live.retarget.contacts_self import ContactSettings, SelfContactDetector
 from live.retarget.contacts_surface import (
+    ALL_PROBES,
     PARTS,
     PROBES,
     REGIONS,
@@ -27,7 +28,6 @@ from live.retarget.contacts_surface import (
 
 BVH = assets.bvh_dir()
 needs_bvh = pytest.mark.skipif(not (BVH / "mb_49_11.bvh").is_file(), reason="needs ../shared/data/bvh")
-_ALL = np.arange(len(PROBES))
 
 
 def _rest_pose(body):
@@ -164,12 +164,12 @@ def test_measure_finds_the_other_hand_when_the_hands_touch():
     surface = body_surface(body)
     glob, pos = _rest_pose(body)
     pos = pos.copy()
-    left = surface.probe_points(glob, pos, 0)
-    right = surface.probe_points(glob, pos, 1)
+    rest = np.asarray(body.vertices, np.float64)  # the rest pose: probes where the mesh has them
+    left, right = rest[surface.model.probes[0]], rest[surface.model.probes[1]]
     shift = left[:, 0].min() - right[:, 0].max()
     pos[JOINT_INDEX["right_wrist"]] += [shift - 0.04, 0.0, 0.0]
     pos[JOINT_INDEX["right_elbow"]] += [shift - 0.04, 0.0, 0.0]
-    gaps = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+    gaps = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
     rows = np.flatnonzero((gaps.probe == 0) & np.isin(gaps.region, [REGIONS.index("right_hand"),
                                                                      REGIONS.index("right_arm")]))
     assert len(rows) >= 1
@@ -241,7 +241,7 @@ def test_an_avatar_without_skin_on_some_joints_still_keeps_contacts():
     assert RetargetStage(avatar).contacts
     surface = body_surface(avatar)
     glob, pos = np.tile(np.eye(3), (22, 1, 1)), np.asarray(avatar.rest_joints, np.float64)
-    assert np.all(measure(surface, glob, pos, _ALL, 0.05, 0.003).gap > 0.03)  # T-pose: nothing touches
+    assert np.all(measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003).gap > 0.03)  # T-pose: nothing touches
 
 
 @needs_bvh
@@ -264,10 +264,10 @@ def test_the_rigid_broad_phase_never_drops_a_pair_the_skinned_one_measures():
     for j in joints[::12][:40]:
         _, _, pos = rt.step(j)
         glob = rt.last_globals
-        gated = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+        gated = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
         slack, cs.SKIN_SLACK = cs.SKIN_SLACK, 10.0
         try:
-            full = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+            full = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
         finally:
             cs.SKIN_SLACK = slack
         skipped += len(gated.gap) == 0 and len(full.gap) == 0
@@ -313,13 +313,13 @@ def test_a_hand_holding_the_other_forearm_takes_it_along_out_of_the_body():
     gap[hold], weight[hold] = 0.0, 1.0
     source = SourceContacts(gap=gap, contact=weight > 0, weight=weight)
     torso = REGIONS.index("torso")
-    before = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+    before = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
     assert before.gap[(before.probe == hold[0]) & (before.region == torso)].min() < -0.01
     keeper = ContactKeeper(info.offsets)
     for _ in range(6):  # the same pose held a few frames
         g, p = glob.copy(), pos.copy()
         keeper(surface, g, local_matrices(glob), p, source, 1 / 30)
-    after = measure(surface, g, p, _ALL, 0.15, 0.003, 0.15)
+    after = measure(surface, g, p, ALL_PROBES, 0.15, 0.003, 0.15)
     assert after.gap[(after.probe == hold[0]) & (after.region == torso)].min() > -0.003
     held = after.gap[(after.probe == hold[0]) & (after.region == hold[1])]
     assert len(held) and held.min() < 0.012
@@ -353,7 +353,7 @@ def test_a_carried_correction_that_drags_an_arm_into_the_body_is_dropped():
     surface, info, glob, pos = _heavy_avatar_posed(hanging)
     nothing = np.zeros((len(PROBES), len(REGIONS)))
     source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
-    clear = measure(surface, glob, pos, _ALL, 0.05, 0.003)
+    clear = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
     assert not len(clear.gap) or clear.gap.min() > 0.0
 
     def depth_of_left(state):

@@ -46,7 +46,7 @@ from live.core.rotations import skew
 from live.core.skeleton import PARENTS
 from live.retarget.analytic import LIMBS
 from live.retarget.contacts_self import ContactSettings, SourceContacts
-from live.retarget.contacts_surface import BAND, PROBES, REGIONS, BodySurface, Gaps, measure
+from live.retarget.contacts_surface import ALL_PROBES, BAND, PROBES, REGIONS, BodySurface, Gaps, measure
 
 #: Gauss-Newton steps per frame at most (each measures the gaps once), and at most when a hand
 #: or forearm is still more than DEEP (m) inside the body (a strike, the first frame).
@@ -117,7 +117,6 @@ class _Arm:
 
 
 ARMS = (_Arm("left", 0), _Arm("right", 1))
-_ALL = np.arange(len(PROBES))
 #: Per probe set: its arm and whether it is a hand. Per region: the arm it belongs to (-1: none)
 #: and whether it is that arm's hand.
 _PROBE_ARM = np.array([0 if p.side == "left" else 1 for p in PROBES])
@@ -231,7 +230,7 @@ class ContactKeeper:
         band = np.where(holding, HOLD_REACH, BAND)
         gaps = None
         if not prior.any():
-            gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
+            gaps = measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band)
             if not np.any(np.abs(self.residuals(gaps, source)) > 1e-5):
                 self.state[:] = 0.0
                 return set()
@@ -246,13 +245,13 @@ class ContactKeeper:
         state = last.copy()
         if state.any():
             self._apply(glob, loc, pos, arms, state)
-            gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
+            gaps = measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band)
             if RESTART_DEPTH > 0:
                 gaps = self._drop_worse(surface, glob, loc, pos, arms, state, last, gaps, reach, band)
         res, seen = np.zeros(0), Gaps.empty()
         for iteration in range(_DEEP_ITERATIONS):
             if gaps is None:
-                gaps = measure(surface, glob, pos, _ALL, reach, self.settings.tau, band)
+                gaps = measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band)
             lower, upper, w = self.bounds(gaps, source)
             res = np.where(gaps.gap < lower, lower - gaps.gap, np.where(gaps.gap > upper, w * (upper - gaps.gap), 0.0))
             seen = gaps

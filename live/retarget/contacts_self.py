@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.retarget.contacts_surface import PROBES, REGIONS, BodySurface, measure
+from live.retarget.contacts_surface import ALL_PROBES, PROBES, REGIONS, BodySurface, measure
 
 #: The gap reported for a pair whose part is too far to be measured (m).
 FAR_GAP = 1.0
@@ -62,12 +62,11 @@ def measure_gaps(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, settin
     tested against in a pose (glob (22, 3, 3), pos (22, 3)); FAR_GAP for regions beyond the broad
     phase's reach and for the probe sets not measured."""
     gaps = np.full((len(PROBES), len(REGIONS)), FAR_GAP)
-    found = measure(surface, glob, pos, _ALL if probes is None else probes, settings.reach, settings.tau)
+    found = measure(surface, glob, pos, ALL_PROBES if probes is None else probes, settings.reach, settings.tau)
     gaps[found.probe, found.region] = found.gap
     return gaps
 
 
-_ALL = np.arange(len(PROBES))
 
 
 class SelfContactDetector:

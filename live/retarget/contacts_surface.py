@@ -135,6 +135,8 @@ class ProbeTargets:
         return cls(tuple(REGIONS.index(r) for r in regions), tuple(parts))
 
 
+#: Every probe set, as ``measure`` takes them.
+ALL_PROBES = np.arange(len(PROBES))
 TARGETS: tuple[ProbeTargets, ...] = tuple(ProbeTargets.of(p) for p in PROBES)
 
 
@@ -177,9 +179,6 @@ class SurfaceModel:
         object.__setattr__(self, "_skin_weights", np.ascontiguousarray(self.skin_weights, np.float64))
         by_joint = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
         object.__setattr__(self, "vertex_region", by_joint[np.asarray(self.skin_joints, np.int64)[:, 0]])
-        dense = np.zeros((len(self.vertices), len(self.rest_joints)))
-        np.put_along_axis(dense, np.asarray(self.skin_joints, np.int64), self.skin_weights, axis=1)
-        object.__setattr__(self, "dense_weights", dense)
         # Each part's skin box (the grid less its margin), relative to its joint: centre, half size.
         top = self.lo + (dims - 1) * self.cell - GRID_MARGIN
         bottom = self.lo + GRID_MARGIN
@@ -214,30 +213,6 @@ class BodySurface:
     def fitted(self, rest_joints: np.ndarray) -> BodySurface:
         """The same body resized to another rest skeleton (by the ratio of pelvis heights)."""
         return BodySurface(self.model, pelvis_height(rest_joints) / pelvis_height(self.model.rest_joints))
-
-    def transforms(self, glob: np.ndarray, pos: np.ndarray) -> np.ndarray:
-        """(22, 12) skinning transforms of a pose, rows [A (9) | b (3)]: a rest vertex v of the
-        model goes to A v + b (A = scale G, b = p - scale G r)."""
-        a = glob * self.scale
-        out = np.empty((len(glob), 12))
-        out[:, :9] = a.reshape(-1, 9)
-        out[:, 9:] = pos - np.einsum("jab,jb->ja", a, self.model.rest_joints)
-        return out
-
-    def skin(self, glob: np.ndarray, pos: np.ndarray, vertices: np.ndarray,
-             transforms: np.ndarray | None = None) -> np.ndarray:
-        """(N, 3) posed positions of skin vertices (indices (N,)) by linear blend skinning in a
-        pose (glob (22, 3, 3), pos (22, 3); ``transforms``: ``self.transforms`` of it, when known).
-        The 12 transform coefficients are blended with one product, as live/body/skinning.py does."""
-        t = self.transforms(glob, pos) if transforms is None else transforms
-        blend = np.take(self.model.dense_weights, vertices, axis=0) @ t  # (N, 12)
-        v = np.take(self.model.vertices, vertices, axis=0)
-        return (blend[:, 0:9:3] * v[:, 0:1] + blend[:, 1:9:3] * v[:, 1:2] + blend[:, 2:9:3] * v[:, 2:3]
-                + blend[:, 9:])
-
-    def probe_points(self, glob: np.ndarray, pos: np.ndarray, probe: int) -> np.ndarray:
-        """(N, 3) world positions of one probe set in a pose (skinned like the mesh)."""
-        return self.skin(glob, pos, self.model.probes[probe])
 
     def distances(self, glob: np.ndarray, pos: np.ndarray, points: np.ndarray, parts: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -532,7 +507,7 @@ def warm_up(surface: BodySurface) -> None:
     a machine, then a fraction of one per process; better spent before a stream than on its
     first frame with a hand near the body."""
     m = surface.model
-    measure(surface, np.broadcast_to(np.eye(3), (len(m.rest_joints), 3, 3)), m.rest_joints, _ALL_PROBES, 0.0, 0.003)
+    measure(surface, np.broadcast_to(np.eye(3), (len(m.rest_joints), 3, 3)), m.rest_joints, ALL_PROBES, 0.0, 0.003)
 
 
 def body_surface(body) -> BodySurface:
@@ -541,7 +516,6 @@ def body_surface(body) -> BodySurface:
 
 
 
-_ALL_PROBES = np.arange(len(PROBES))
 #: ALLOWED[i, k]: probe set i is tested against part k (TARGETS as a table).
 ALLOWED = np.zeros((len(PROBES), len(PARTS)), bool)
 for _i, _t in enumerate(TARGETS):

@@ -445,8 +445,8 @@ class PersonFinder:
         z = np.take(depth.reshape(-1), at).astype(np.float32) * np.float32(0.001)
         z_ref = np.take(ref.reshape(-1), at).astype(np.float32) * np.float32(0.001)
         noise = cfg.motion_change_m + 0.01 * z * z
-        nearer = z_ref - z
-        moved = nearer > noise
+        moved = z_ref - z > noise  # came nearer
         if cfg.motion_recede_m is not None:
-            moved |= (-nearer > noise) & (-nearer < noise + cfg.motion_recede_m)
+            farther = z - z_ref
+            moved |= (farther > noise) & (farther < noise + cfg.motion_recede_m)
         return (z > 0) & (z_ref > 0) & moved
