@@ -105,6 +105,8 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
     none = np.zeros(0, np.int64)
     if not anything:
         return none, none, np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    # live.body.skinning.pose_transforms of (scale G, p), here rather than passed in: only past
+    # the early exit above (a call from numpy costs 4 us of the measure's 38).
     transforms = np.empty((len(glob), 12))
     for j in range(len(glob)):
         for i in range(3):
