@@ -68,12 +68,78 @@ def _skin(v, transforms, vertices, skin_joints, skin_weights, i):
     return acc
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _skinned(v, transforms, vertices, skin_joints, skin_weights, skinned, ready):
+    """Skin vertex v once per measure (``skinned`` / ``ready``: what this measure has skinned)."""
+    if not ready[v]:
+        for i in range(3):
+            skinned[v, i] = _skin(v, transforms, vertices, skin_joints, skin_weights, i)
+        ready[v] = True
+
+
+@njit(cache=True, nogil=True)
+def _walk(v, region, p, steps, transforms, vertices, normals, skin_joints, skin_weights, ring_start, ring,
+          vertex_region, skinned, ready, direction):
+    """Signed distance of point p to the skinned skin of ``region``, from vertex v on: along the
+    mesh's edges to the region's skinned vertex nearest p (at most ``steps`` moves), then p's
+    offset along that vertex's skinned normal (into ``direction``). Where a vertex of another
+    region lies nearer still, p is beyond this region's edge: outside, at its distance from the
+    vertex (as a closest point on a part's open edge counts)."""
+    _skinned(v, transforms, vertices, skin_joints, skin_weights, skinned, ready)
+    best = (skinned[v, 0] - p[0]) ** 2 + (skinned[v, 1] - p[1]) ** 2 + (skinned[v, 2] - p[2]) ** 2
+    beyond = False
+    for _ in range(steps):
+        nxt = -1
+        beyond = False
+        for r in range(ring_start[v], ring_start[v + 1]):
+            w = ring[r]
+            _skinned(w, transforms, vertices, skin_joints, skin_weights, skinned, ready)
+            d = (skinned[w, 0] - p[0]) ** 2 + (skinned[w, 1] - p[1]) ** 2 + (skinned[w, 2] - p[2]) ** 2
+            if d < best:
+                if vertex_region[w] == region:
+                    best, nxt = d, w
+                else:
+                    beyond = True
+        if nxt < 0:
+            break
+        v = nxt
+    # The skinned normal: the blended transform's linear part applied to the rest normal.
+    n = np.zeros(3)
+    for c in range(skin_joints.shape[1]):
+        t = transforms[skin_joints[v, c]]
+        wt = skin_weights[v, c]
+        for i in range(3):
+            n[i] += wt * (t[3 * i] * normals[v, 0] + t[3 * i + 1] * normals[v, 1] + t[3 * i + 2] * normals[v, 2])
+    norm = max(math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), 1e-12)
+    offset = 0.0
+    for i in range(3):
+        direction[i] = n[i] / norm
+        offset += direction[i] * (p[i] - skinned[v, i])
+    if beyond and offset < 0.0:
+        far = max(math.sqrt(best), 1e-12)
+        for i in range(3):
+            direction[i] = (p[i] - skinned[v, i]) / far
+        return far
+    # The skin about the vertex as a disc as wide as its edges are long: a point to the side of
+    # it (at a fold, past the skin's edge) is as far as the disc's rim, not the plane.
+    edge = 0.0
+    for r in range(ring_start[v], ring_start[v + 1]):
+        w = ring[r]
+        edge += math.sqrt((skinned[w, 0] - skinned[v, 0]) ** 2 + (skinned[w, 1] - skinned[v, 1]) ** 2
+                          + (skinned[w, 2] - skinned[v, 2]) ** 2)
+    edge /= max(ring_start[v + 1] - ring_start[v], 1)
+    side = max(math.sqrt(max(best - offset * offset, 0.0)) - edge, 0.0)
+    if side == 0.0:
+        return offset
+    return math.copysign(math.sqrt(offset * offset + side * side), offset)
+
+
 @njit(cache=True, nogil=True)
 def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
                  probe_vertices, probe_joint, probe_centre, probe_radius, allowed, region_allowed,
                  frames, part_centre_rest, part_radius, box_centre, box_half,
                  data, nearest, lo, top, strides, base, cell, vertex_region,
-                 vertices, rest_joints, skin_joints, skin_weights):
+                 vertices, rest_joints, skin_joints, skin_weights, normals, ring_start, ring, walk_steps, walk_from):
     """Gaps of probe sets ``probes`` (indices into PROBES; reach and band per probe set) to the
     regions they are tested against, grouped by (probe set, region) in that order: probe (G,),
     region (G,), gap (G,), direction (G, 3), point (G, 3). Empty when nothing is near."""
@@ -178,8 +244,12 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
             low[group] = min(low[group], e_dist[used])
             used += 1
     # Where the softmin will look, the rigid part's distance corrected by how far skinning puts
-    # the nearest vertex from where the part moved rigidly would (a bent spine's belly).
+    # the nearest vertex from where the part moved rigidly would (a bent spine's belly); where
+    # that is more than walk_from, the rigid grid named the wrong skin: the distance is taken on
+    # the skinned mesh itself instead (``_walk``).
     gap = np.full(n_slots * n_regions, np.inf)
+    skinned = np.empty((len(vertices), 3))
+    ready = np.zeros(len(vertices), np.bool_)
     for e in range(used):
         g = e_group[e]
         if e_dist[e] < low[g] + LOOK_TAUS * tau:
@@ -187,11 +257,18 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
             rx = (vertices[v, 0] - rest_joints[f, 0]) * scale
             ry = (vertices[v, 1] - rest_joints[f, 1]) * scale
             rz = (vertices[v, 2] - rest_joints[f, 2]) * scale
+            _skinned(v, transforms, vertices, skin_joints, skin_weights, skinned, ready)
             moved = 0.0
+            shift = 0.0
             for i in range(3):
-                rigid = glob[f, i, 0] * rx + glob[f, i, 1] * ry + glob[f, i, 2] * rz + pos[f, i]
-                moved += e_dir[e, i] * (_skin(v, transforms, vertices, skin_joints, skin_weights, i) - rigid)
-            e_dist[e] -= moved
+                d = skinned[v, i] - (glob[f, i, 0] * rx + glob[f, i, 1] * ry + glob[f, i, 2] * rz + pos[f, i])
+                moved += e_dir[e, i] * d
+                shift += d * d
+            if shift > walk_from * walk_from:
+                e_dist[e] = _walk(v, g % n_regions, e_pt[e], walk_steps, transforms, vertices, normals,
+                                  skin_joints, skin_weights, ring_start, ring, vertex_region, skinned, ready, e_dir[e])
+            else:
+                e_dist[e] -= moved
         gap[g] = min(gap[g], e_dist[e])
     # The gap: the nearest probe's distance; direction and point softmin-weighted.
     total = np.zeros(n_slots * n_regions)

@@ -59,8 +59,13 @@ PROBE_COUNT = 48
 #: How far skinning may move a probe from where its joint alone carries it (m): the first,
 #: rigid broad phase allows for it.
 SKIN_SLACK = 0.08
+#: Where skinning moves the grid's nearest vertex more than WALK_FROM (m) from where the part's
+#: joint alone carries it (a spine bent over: 5-9 cm), the grid's answer is only a start: the
+#: measure walks at most WALK_STEPS edges of the skinned mesh to the nearest skinned vertex.
+WALK_STEPS = 32
+WALK_FROM = 0.01
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
-MODEL_VERSION = 7
+MODEL_VERSION = 8
 
 
 @dataclass(frozen=True)
@@ -149,8 +154,9 @@ class SurfaceModel:
     ``frames[k]``, grid corner ``lo[k]`` relative to that joint's rest position, ``dims[k]``
     cells per axis, ``base[k]`` first row in data, bounding sphere ``centre[k]`` / ``radius[k]``
     (relative to the joint). The skin: rest ``vertices`` (V, 3) with their four heaviest joints
-    ``skin_joints`` (V, 4) and weights ``skin_weights`` (V, 4). probes[i]: the vertices of probe
-    set i. rest_joints: the rest skeleton the model was built on."""
+    ``skin_joints`` (V, 4) and weights ``skin_weights`` (V, 4), rest unit ``normals`` (V, 3),
+    each vertex's neighbours along the mesh's edges ``ring[ring_start[v]:ring_start[v + 1]]``.
+    probes[i]: the vertices of probe set i. rest_joints: the rest skeleton the model was built on."""
 
     data: np.ndarray
     nearest: np.ndarray
@@ -163,6 +169,9 @@ class SurfaceModel:
     vertices: np.ndarray
     skin_joints: np.ndarray
     skin_weights: np.ndarray
+    normals: np.ndarray
+    ring_start: np.ndarray
+    ring: np.ndarray
     probes: tuple[np.ndarray, ...]
     rest_joints: np.ndarray
     cell: float
@@ -177,6 +186,9 @@ class SurfaceModel:
         object.__setattr__(self, "_data", np.asarray(self.data, np.float64))
         object.__setattr__(self, "_skin_joints", np.ascontiguousarray(self.skin_joints, np.int64))
         object.__setattr__(self, "_skin_weights", np.ascontiguousarray(self.skin_weights, np.float64))
+        object.__setattr__(self, "_normals", np.ascontiguousarray(self.normals, np.float64))
+        object.__setattr__(self, "_ring_start", np.ascontiguousarray(self.ring_start, np.int64))
+        object.__setattr__(self, "_ring", np.ascontiguousarray(self.ring, np.int64))
         by_joint = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
         object.__setattr__(self, "vertex_region", by_joint[np.asarray(self.skin_joints, np.int64)[:, 0]])
         # Each part's skin box (the grid less its margin), relative to its joint: centre, half size.
@@ -434,11 +446,22 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
     heavy = np.argsort(-weights, axis=1, kind="stable")[:, :4]
     heavy_w = np.take_along_axis(weights, heavy, axis=1)
     heavy_w /= np.maximum(heavy_w.sum(1, keepdims=True), 1e-12)
+    ring_start, ring = vertex_rings(faces, len(vertices))
     return SurfaceModel(data=np.concatenate(blocks), nearest=np.concatenate(nearest), frames=np.array(frames, np.int64),
                         lo=np.array(los), dims=np.array(dims, np.int64), base=np.array(bases, np.int64),
                         centre=np.array(centres), radius=np.array(radii), vertices=vertices.copy(),
-                        skin_joints=heavy.astype(np.int64), skin_weights=heavy_w, probes=tuple(probes),
-                        rest_joints=rest.copy(), cell=float(cell))
+                        skin_joints=heavy.astype(np.int64), skin_weights=heavy_w, normals=normals,
+                        ring_start=ring_start, ring=ring, probes=tuple(probes), rest_joints=rest.copy(), cell=float(cell))
+
+
+def vertex_rings(faces: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex's neighbours along the mesh's edges, packed: (start (count + 1,), neighbours):
+    vertex v's are neighbours[start[v]:start[v + 1]], sorted."""
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = np.unique(np.concatenate([edges, edges[:, ::-1]]), axis=0)  # both ways, sorted by vertex
+    start = np.zeros(count + 1, np.int64)
+    np.cumsum(np.bincount(edges[:, 0], minlength=count), out=start[1:])
+    return start, edges[:, 1].astype(np.int64)
 
 
 # -------------------------------------------------------------------------------------- caching
@@ -446,7 +469,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
 _MEMO_LOCK = threading.Lock()
 _MEMO: dict[str, SurfaceModel] = {}
 _ARRAYS = ("data", "nearest", "frames", "lo", "dims", "base", "centre", "radius", "vertices", "skin_joints",
-           "skin_weights", "rest_joints")
+           "skin_weights", "normals", "ring_start", "ring", "rest_joints")
 
 
 def _key(body) -> str:
@@ -576,4 +599,4 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
                             m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
                             m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
                             m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
-                            m._skin_joints, m._skin_weights))
+                            m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM)))

@@ -1,0 +1,92 @@
+"""How far the retarget stage's gap measure (live/retarget/contacts_surface.py ``measure``) is from
+the exact distance to the skinned skin, on the rotation copy's poses of the tuning takes.
+
+For every other frame of each tuning take (live/evaluation/contact_clips.py TUNING_TAKES, the
+tuning performer) copied onto each tuning avatar, every (probe set, region) row the measure
+returns within 3 cm is measured again exactly as the evaluation cuts the skin (faces of the
+region's dominant-weight vertices, open edges outside, inside confirmed by winding number).
+
+    python -m research.contact_measure_accuracy [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+import live.retarget.contacts_surface as cs
+from live.body.library import load_body
+from live.body.skinning import lbs
+from live.core.skeleton import JOINT_INDEX
+from live.evaluation.contact_clips import TUNING_TAKES, take_motion
+from live.evaluation.contacts import TUNING_AVATARS, TUNING_PERFORMER
+from live.evaluation.retarget import make_retargeter, source_skeletons
+
+#: The regions as the evaluation cuts the skin: by each vertex's heaviest joint.
+REGION_JOINTS = {"torso": ("pelvis", "spine1", "spine2", "spine3", "left_collar", "right_collar"),
+                 "head": ("neck", "head"), "left_leg": ("left_hip", "left_knee", "left_ankle", "left_foot"),
+                 "right_leg": ("right_hip", "right_knee", "right_ankle", "right_foot"),
+                 "left_hand": ("left_wrist",), "right_hand": ("right_wrist",),
+                 "left_arm": ("left_shoulder", "left_elbow"), "right_arm": ("right_shoulder", "right_elbow")}
+
+
+def rows_of(avatar_name: str) -> list[tuple]:
+    """(avatar, take, frame, probe set, region, measured gap, exact gap) per measured row."""
+    performer, avatar = load_body(TUNING_PERFORMER), load_body(avatar_name)
+    surface = cs.body_surface(avatar)
+    faces = np.asarray(avatar.faces, np.int64)
+    dominant = np.asarray(avatar.weights).argmax(1)
+    skins = {r: faces[np.isin(dominant, [JOINT_INDEX[n] for n in js])[faces].sum(1) >= 2]
+             for r, js in REGION_JOINTS.items()}
+    borders = {r: cs.border_vertices(f, len(dominant)) for r, f in skins.items()}
+    out = []
+    for take in TUNING_TAKES:
+        motion = take_motion(*take, performer)
+        joints, source_rest, _ = source_skeletons(motion, performer, "skeleton")
+        retargeter = make_retargeter("analytic", source_rest, avatar.rest_joints, 30.0)
+        for t, frame in enumerate(joints):
+            root, quats, pos = retargeter.step(frame)
+            if t % 2:
+                continue
+            gaps = cs.measure(surface, np.array(retargeter.last_globals), np.asarray(pos, np.float64), cs.ALL_PROBES,
+                              0.03, 0.003)
+            near = np.flatnonzero(gaps.gap < 0.03)
+            if not len(near):
+                continue
+            v = lbs(avatar.vertices, avatar.weights, avatar.rest_joints, np.asarray(quats), np.asarray(root))[0]
+            v = v.astype(np.float64)
+            normals = cs.vertex_normals(v, faces)
+            for row in near:
+                region = cs.REGIONS[gaps.region[row]]
+                pts = v[surface.model.probes[gaps.probe[row]]]
+                d = cs.signed_distances(v, normals, skins[region], pts, borders[region])[0]
+                inside = np.flatnonzero(d < 0.0)
+                if len(inside):
+                    d[inside[cs.winding_numbers(v, skins[region], pts[inside]) < 0.3]] *= -1.0
+                out.append((avatar_name, motion.name, t, cs.PROBES[gaps.probe[row]].name, region,
+                            float(gaps.gap[row]), float(d.min())))
+        print(f"{avatar_name} {motion.name}: {len(out)} rows", file=sys.stderr, flush=True)
+    return out
+
+
+def summary(rows: list[tuple]) -> dict[str, float]:
+    err = 1000.0 * np.array([r[5] - r[6] for r in rows])
+    return {"rows": len(rows), "median_abs_mm": float(np.median(np.abs(err))),
+            "p95_abs_mm": float(np.percentile(np.abs(err), 95)), "p99_abs_mm": float(np.percentile(np.abs(err), 99)),
+            "max_abs_mm": float(np.abs(err).max()), "deeper_by_10mm": int((err < -10).sum()),
+            "shallower_by_10mm": int((err > 10).sum())}
+
+
+if __name__ == "__main__":
+    cli = argparse.ArgumentParser(prog="python -m research.contact_measure_accuracy", description=__doc__.split("\n")[0])
+    cli.add_argument("--json", default=None, help="also write the rows and the summary here")
+    args = cli.parse_args()
+    rows = [r for avatar in TUNING_AVATARS for r in rows_of(avatar)]
+    result = summary(rows)
+    print(json.dumps(result, indent=1))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"summary": result, "rows": rows}, f)
