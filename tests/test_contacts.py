@@ -381,7 +381,7 @@ def test_the_measure_follows_the_skinned_mesh_where_a_bent_spine_moves_the_belly
     and forearms to the torso against the exact distance to the skinned skin (the evaluation's
     cut: faces of torso-dominant vertices, open edges outside). Where skinning moves the skin far
     from where a part's joint alone carries it, the rigid grids alone were off by more than 5 cm
-    on a tenth of these rows (3 mm with the skinned mesh)."""
+    on a tenth of these rows (4 mm with the skinned mesh)."""
     from live.body.skinning import lbs
     from live.evaluation.contact_clips import TUNING_TAKES, take_motion
     from live.evaluation.contacts import TUNING_PERFORMER

@@ -78,11 +78,12 @@ def _skinned(v, transforms, vertices, skin_joints, skin_weights, skinned, ready)
 
 
 @njit(cache=True, nogil=True)
-def _walk(v, region, p, steps, transforms, vertices, normals, skin_joints, skin_weights, ring_start, ring,
+def _walk(v, region, p, steps, reach, transforms, vertices, normals, skin_joints, skin_weights, ring_start, ring,
           vertex_region, skinned, ready, direction):
     """Signed distance of point p to the skinned skin of ``region``, from vertex v on: along the
     mesh's edges to the region's skinned vertex nearest p (at most ``steps`` moves), then p's
-    offset along that vertex's skinned normal (into ``direction``). Where a vertex of another
+    offset along that vertex's skinned normal (into ``direction``); NaN (``direction`` left
+    alone) when that vertex is farther than ``reach`` from p. Where a vertex of another
     region lies nearer still, p is beyond this region's edge: outside, at its distance from the
     vertex (as a closest point on a part's open edge counts)."""
     _skinned(v, transforms, vertices, skin_joints, skin_weights, skinned, ready)
@@ -103,6 +104,8 @@ def _walk(v, region, p, steps, transforms, vertices, normals, skin_joints, skin_
         if nxt < 0:
             break
         v = nxt
+    if best > reach * reach:
+        return np.nan  # the walk stopped on skin no nearer than this: a local minimum far off
     # The skinned normal: the blended transform's linear part applied to the rest normal.
     n = np.zeros(3)
     for c in range(skin_joints.shape[1]):
@@ -139,7 +142,8 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
                  probe_vertices, probe_joint, probe_centre, probe_radius, allowed, region_allowed,
                  frames, part_centre_rest, part_radius, box_centre, box_half,
                  data, nearest, lo, top, strides, base, cell, vertex_region,
-                 vertices, rest_joints, skin_joints, skin_weights, normals, ring_start, ring, walk_steps, walk_from):
+                 vertices, rest_joints, skin_joints, skin_weights, normals, ring_start, ring, walk_steps, walk_from,
+                 walk_reach):
     """Gaps of probe sets ``probes`` (indices into PROBES; reach and band per probe set) to the
     regions they are tested against, grouped by (probe set, region) in that order: probe (G,),
     region (G,), gap (G,), direction (G, 3), point (G, 3). Empty when nothing is near."""
@@ -264,11 +268,14 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
                 d = skinned[v, i] - (glob[f, i, 0] * rx + glob[f, i, 1] * ry + glob[f, i, 2] * rz + pos[f, i])
                 moved += e_dir[e, i] * d
                 shift += d * d
+            walked = np.nan
             if shift > walk_from * walk_from:
-                e_dist[e] = _walk(v, g % n_regions, e_pt[e], walk_steps, transforms, vertices, normals,
-                                  skin_joints, skin_weights, ring_start, ring, vertex_region, skinned, ready, e_dir[e])
-            else:
+                walked = _walk(v, g % n_regions, e_pt[e], walk_steps, walk_reach, transforms, vertices, normals,
+                               skin_joints, skin_weights, ring_start, ring, vertex_region, skinned, ready, e_dir[e])
+            if np.isnan(walked):
                 e_dist[e] -= moved
+            else:
+                e_dist[e] = walked
         gap[g] = min(gap[g], e_dist[e])
     # The gap: the nearest probe's distance; direction and point softmin-weighted.
     total = np.zeros(n_slots * n_regions)

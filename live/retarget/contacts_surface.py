@@ -61,9 +61,12 @@ PROBE_COUNT = 48
 SKIN_SLACK = 0.08
 #: Where skinning moves the grid's nearest vertex more than WALK_FROM (m) from where the part's
 #: joint alone carries it (a spine bent over: 5-9 cm), the grid's answer is only a start: the
-#: measure walks at most WALK_STEPS edges of the skinned mesh to the nearest skinned vertex.
+#: measure walks at most WALK_STEPS edges of the skinned mesh to the nearest skinned vertex. A
+#: walk ending on a vertex farther than WALK_REACH (m) from the probe stopped in a local minimum
+#: far off (a hand on a child's hip read 13 cm inside its torso): the grid's answer stands.
 WALK_STEPS = 32
 WALK_FROM = 0.01
+WALK_REACH = 0.04
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
 MODEL_VERSION = 8
 
@@ -599,4 +602,4 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
                             m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
                             m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
                             m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
-                            m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM)))
+                            m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM), float(WALK_REACH)))
