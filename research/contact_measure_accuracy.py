@@ -20,17 +20,9 @@ import numpy as np
 import live.retarget.contacts_surface as cs
 from live.body.library import load_body
 from live.body.skinning import lbs
-from live.core.skeleton import JOINT_INDEX
 from live.evaluation.contact_clips import TUNING_TAKES, take_motion
 from live.evaluation.contacts import TUNING_AVATARS, TUNING_PERFORMER
 from live.evaluation.retarget import make_retargeter, source_skeletons
-
-#: The regions as the evaluation cuts the skin: by each vertex's heaviest joint.
-REGION_JOINTS = {"torso": ("pelvis", "spine1", "spine2", "spine3", "left_collar", "right_collar"),
-                 "head": ("neck", "head"), "left_leg": ("left_hip", "left_knee", "left_ankle", "left_foot"),
-                 "right_leg": ("right_hip", "right_knee", "right_ankle", "right_foot"),
-                 "left_hand": ("left_wrist",), "right_hand": ("right_wrist",),
-                 "left_arm": ("left_shoulder", "left_elbow"), "right_arm": ("right_shoulder", "right_elbow")}
 
 
 def rows_of(avatar_name: str) -> list[tuple]:
@@ -38,10 +30,11 @@ def rows_of(avatar_name: str) -> list[tuple]:
     performer, avatar = load_body(TUNING_PERFORMER), load_body(avatar_name)
     surface = cs.body_surface(avatar)
     faces = np.asarray(avatar.faces, np.int64)
-    dominant = np.asarray(avatar.weights).argmax(1)
-    skins = {r: faces[np.isin(dominant, [JOINT_INDEX[n] for n in js])[faces].sum(1) >= 2]
-             for r, js in REGION_JOINTS.items()}
-    borders = {r: cs.border_vertices(f, len(dominant)) for r, f in skins.items()}
+    # Each region's skin as the evaluation cuts it: faces of two or more of its vertices (a
+    # vertex's region: its heaviest joint's, as the measure assigns it).
+    region_of = surface.model.vertex_region
+    skins = {r: faces[(region_of == k)[faces].sum(1) >= 2] for k, r in enumerate(cs.REGIONS)}
+    borders = {r: cs.border_vertices(f, len(region_of)) for r, f in skins.items()}
     out = []
     for take in TUNING_TAKES:
         motion = take_motion(*take, performer)

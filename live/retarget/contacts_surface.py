@@ -590,7 +590,8 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     weight (parts overlap across their seams; a region is where the vertices are, as the
     evaluation cuts the skin). A region's gap is the least of its probes'
     distances, each part moved rigidly by its joint and then corrected by how far skinning moves
-    the nearest skin vertex out of that rigid place (a bent spine's belly): the nearest probe's;
+    the nearest skin vertex out of that rigid place (a bent spine's belly), or, where skinning
+    moved it more than WALK_FROM, measured on the skinned mesh from there: the nearest probe's;
     its direction and point are softmin-weighted (length ``tau``), so that they change
     continuously as the closest probe or part changes. Regions with no probe that near are left out."""
     m = surface.model
