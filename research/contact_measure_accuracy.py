@@ -21,7 +21,7 @@ import live.retarget.contacts_surface as cs
 from live.body.library import load_body
 from live.body.skinning import lbs
 from live.evaluation.contact_clips import TUNING_TAKES, take_motion
-from live.evaluation.contacts import TUNING_AVATARS, TUNING_PERFORMER
+from live.evaluation.contacts import TUNING_AVATARS, TUNING_PERFORMER, skin_distances
 from live.evaluation.retarget import make_retargeter, source_skeletons
 
 
@@ -55,10 +55,7 @@ def rows_of(avatar_name: str) -> list[tuple]:
             for row in near:
                 region = cs.REGIONS[gaps.region[row]]
                 pts = v[surface.model.probes[gaps.probe[row]]]
-                d = cs.signed_distances(v, normals, skins[region], pts, borders[region])[0]
-                inside = np.flatnonzero(d < 0.0)
-                if len(inside):
-                    d[inside[cs.winding_numbers(v, skins[region], pts[inside]) < 0.3]] *= -1.0
+                d = skin_distances(v, normals, skins[region], pts, borders[region])
                 out.append((avatar_name, motion.name, t, cs.PROBES[gaps.probe[row]].name, region,
                             float(gaps.gap[row]), float(d.min())))
         print(f"{avatar_name} {motion.name}: {len(out)} rows", file=sys.stderr, flush=True)

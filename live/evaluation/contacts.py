@@ -78,11 +78,26 @@ class BodyRegions:
                    skins=skins, borders={k: border_vertices(f, len(dominant)) for k, f in skins.items()})
 
 
+def skin_distances(vertices: np.ndarray, normals: np.ndarray, skin: np.ndarray, points: np.ndarray,
+                   border: np.ndarray) -> np.ndarray:
+    """Exact signed distances (Q,) of points (Q, 3) to the skin made of faces ``skin`` of a posed
+    mesh (vertices, unit vertex normals; ``border``: the skin's open-edge vertices), negative
+    inside only where the skin also winds about the point: a fold of the skinned mesh turns the
+    closest face's normal inward far from any real penetration."""
+    from live.retarget.contacts_surface import signed_distances, winding_numbers
+
+    d = signed_distances(vertices, normals, skin, points, border)[0]
+    inside = np.flatnonzero(d < 0.0)
+    if len(inside):
+        d[inside[winding_numbers(vertices, skin, points[inside]) < 0.3]] *= -1.0
+    return d
+
+
 def contact_geometry(regions: BodyRegions, faces: np.ndarray, vertices: np.ndarray, progress=None
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Per frame of posed vertices (T, V, 3): hand gaps (T, 2 hands, 4 regions as REGIONS, m)
     and the arms' deepest penetration (T, 2 arms, m, >= 0)."""
-    from live.retarget.contacts_surface import signed_distances, vertex_normals, winding_numbers
+    from live.retarget.contacts_surface import vertex_normals
 
     t_count = len(vertices)
     gaps = np.full((t_count, 2, len(REGIONS)), FAR)
@@ -107,13 +122,7 @@ def contact_geometry(regions: BodyRegions, faces: np.ndarray, vertices: np.ndarr
                 if normals is None:
                     normals = vertex_normals(v, faces)
                 d = np.full(len(pts), FAR)
-                d[near] = signed_distances(v, normals, skin, pts[near], regions.borders[skin_name])[0]
-                # Inside only where the skin winds about the point: a fold of the skinned mesh
-                # turns the closest face's normal inward far from any real penetration.
-                inside = np.flatnonzero(d < 0.0)
-                if len(inside):
-                    outside = winding_numbers(v, skin, pts[inside]) < 0.3
-                    d[inside[outside]] *= -1.0
+                d[near] = skin_distances(v, normals, skin, pts[near], regions.borders[skin_name])
                 gaps[t, a, r] = d[: hands[a]].min()
                 worst[a] = min(worst[a], float(d.min()))
         depth[t] = -worst

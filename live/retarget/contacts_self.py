@@ -67,8 +67,6 @@ def measure_gaps(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, settin
     return gaps
 
 
-
-
 class SelfContactDetector:
     """Online self-contacts of the performer with hysteresis and ramped weights; ``probes``: the
     probe sets whose contacts are wanted (default all; the others never touch)."""
