@@ -181,13 +181,16 @@ TUNING_TAKES = (("mb_35_01.bvh", 0, 150, "hands-on-hips"), ("mb_35_09.bvh", 0, 1
 
 def take_motion(clip: str, start: int, frames: int, kind: str | None, body, bvh_dir=None):
     """A take of CONTACT_TAKES prepared at 30 fps on the performer's body (its arms made into a
-    contact clip when ``kind`` says so)."""
+    contact clip when ``kind`` says so), grounded as a motion of its own: as the evaluation
+    prepares it again (live/evaluation/retarget.py ``prepare_motion``), so that skeletons made
+    from the take and the reference made from the prepared motion stand on the same floor (the
+    clip grounded whole put a take's window up to 12 mm off it)."""
     from pathlib import Path
 
     from live.core import assets
-    from live.evaluation.retarget import prepare_motion
+    from live.evaluation.retarget import grounded, prepare_motion
 
     motion = prepare_motion((Path(bvh_dir) if bvh_dir else assets.bvh_dir()) / clip, 30.0)
     motion = replace(motion, joints=motion.joints[start:start + frames],
                      rotations=motion.rotations[start:start + frames], root=motion.root[start:start + frames])
-    return contact_clip(kind, motion, body) if kind else motion
+    return grounded(contact_clip(kind, motion, body) if kind else motion)
