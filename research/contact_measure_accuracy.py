@@ -3,8 +3,10 @@ the exact distance to the skinned skin, on the rotation copy's poses of the tuni
 
 For every other frame of each tuning take (live/evaluation/contact_clips.py TUNING_TAKES, the
 tuning performer) copied onto each tuning avatar, every (probe set, region) row the measure
-returns within 3 cm is measured again exactly as the evaluation cuts the skin (faces of the
-region's dominant-weight vertices, open edges outside, inside confirmed by winding number).
+returns within 10 cm is measured again exactly as the evaluation cuts the skin (faces of the
+region's dominant-weight vertices, open edges outside, inside confirmed by winding number); the
+rows within 3 cm by either count (a row the measure reads far while the skin is near is a
+contact missed, as one read too deep is a push that was not needed).
 
     python -m research.contact_measure_accuracy [--json FILE]
 """
@@ -23,6 +25,10 @@ from live.body.skinning import lbs
 from live.evaluation.contact_clips import TUNING_TAKES, take_motion
 from live.evaluation.contacts import TUNING_AVATARS, TUNING_PERFORMER, skin_distances
 from live.evaluation.retarget import make_retargeter, source_skeletons
+
+#: Rows are measured out to LOOK (m) and kept where the measure or the exact distance is within NEAR.
+LOOK = 0.10
+NEAR = 0.03
 
 
 def rows_of(avatar_name: str) -> list[tuple]:
@@ -45,8 +51,8 @@ def rows_of(avatar_name: str) -> list[tuple]:
             if t % 2:
                 continue
             gaps = cs.measure(surface, np.array(retargeter.last_globals), np.asarray(pos, np.float64), cs.ALL_PROBES,
-                              0.03, 0.003)
-            near = np.flatnonzero(gaps.gap < 0.03)
+                              LOOK, 0.003, LOOK)
+            near = np.flatnonzero(gaps.gap < LOOK)
             if not len(near):
                 continue
             v = lbs(avatar.vertices, avatar.weights, avatar.rest_joints, np.asarray(quats), np.asarray(root))[0]
@@ -56,6 +62,8 @@ def rows_of(avatar_name: str) -> list[tuple]:
                 region = cs.REGIONS[gaps.region[row]]
                 pts = v[surface.model.probes[gaps.probe[row]]]
                 d = skin_distances(v, normals, skins[region], pts, borders[region])
+                if min(gaps.gap[row], d.min()) >= NEAR:
+                    continue
                 out.append((avatar_name, motion.name, t, cs.PROBES[gaps.probe[row]].name, region,
                             float(gaps.gap[row]), float(d.min())))
         print(f"{avatar_name} {motion.name}: {len(out)} rows", file=sys.stderr, flush=True)
@@ -67,7 +75,7 @@ def summary(rows: list[tuple]) -> dict[str, float]:
     return {"rows": len(rows), "median_abs_mm": float(np.median(np.abs(err))),
             "p95_abs_mm": float(np.percentile(np.abs(err), 95)), "p99_abs_mm": float(np.percentile(np.abs(err), 99)),
             "max_abs_mm": float(np.abs(err).max()), "deeper_by_10mm": int((err < -10).sum()),
-            "shallower_by_10mm": int((err > 10).sum())}
+            "shallower_by_10mm": int((err > 10).sum()), "farther_by_30mm": int((err > 30).sum())}
 
 
 if __name__ == "__main__":

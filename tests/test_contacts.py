@@ -101,8 +101,8 @@ def _retarget(motion, source, target, contacts: bool):
 @needs_bvh
 def test_a_hand_sinking_into_a_heavy_belly_is_pushed_out_and_the_contact_kept():
     """Hands resting on the belly (CMU subject 49, curled in) on the heaviest avatar: without the
-    correction they sink centimetres in; with it the contacts stay within 2 cm and the hands no
-    deeper than a few millimetres, measured on the skinned mesh."""
+    correction they sink centimetres in; with it the contacts stay within 2 cm (once they have
+    ramped in) and the hands no deeper than a few millimetres, measured on the skinned mesh."""
     from live.evaluation.contacts import REGIONS as EVAL_REGIONS
     from live.evaluation.contacts import BodyRegions, contact_geometry
 
@@ -122,7 +122,10 @@ def test_a_hand_sinking_into_a_heavy_belly_is_pushed_out_and_the_contact_kept():
     hands_on = results[True][0][:, :, torso]
     assert hands_off.min() < -0.02  # sinks in by more than 2 cm without
     assert hands_on.min() > -0.008
-    assert np.all(hands_on[hands_off < 0.01] < 0.02)  # the contacts are kept
+    # The contacts are kept once their weight has ramped in (the take starts with the hand
+    # deep in the belly and in the other forearm: both are pushed out first).
+    ramp = int(np.ceil(ContactSettings().blend_s * 30))
+    assert np.all(hands_on[ramp:][hands_off[ramp:] < 0.01] < 0.02)
 
 
 @needs_bvh
@@ -415,3 +418,35 @@ def test_the_measure_follows_the_skinned_mesh_where_a_bent_spine_moves_the_belly
     errors = np.abs(np.array(errors))
     assert len(errors) > 50
     assert np.percentile(errors, 90) < 0.01 and np.median(errors) < 0.002
+
+
+@needs_bvh
+def test_a_hand_on_the_other_forearm_by_its_wrist_reads_as_near():
+    """Salsa copied onto the slimmest training avatar, one hand on the other forearm by its wrist
+    (1 mm from its skin). Each part's grid holds only its own region's skin: the forearm's grid
+    overlapped the hand's skin there, its samples counted for the hand, and the arm's row read
+    36 mm (a contact lost, the keeper then pulling the hand away)."""
+    from live.body.skinning import lbs
+    from live.evaluation.contact_clips import TUNING_TAKES, take_motion
+    from live.evaluation.contacts import TUNING_PERFORMER, skin_distances
+    from live.evaluation.retarget import make_retargeter, source_skeletons
+    from live.retarget.contacts_surface import border_vertices
+
+    performer, avatar = load_body(TUNING_PERFORMER), load_body("child_boy_4y")
+    motion = take_motion(*next(t for t in TUNING_TAKES if t[0] == "daz_salsa_16.bvh"), performer, BVH)
+    joints, source_rest, _ = source_skeletons(motion, performer, "skeleton")
+    retargeter = make_retargeter("analytic", source_rest, avatar.rest_joints, 30.0)
+    for frame in joints[:153]:
+        root, quats, pos = retargeter.step(frame)
+    surface = body_surface(avatar)
+    gaps = measure(surface, np.array(retargeter.last_globals), np.asarray(pos, np.float64), ALL_PROBES, 0.1, 0.003, 0.1)
+    faces = np.asarray(avatar.faces, np.int64)
+    arm = surface.model.vertex_region == REGIONS.index("right_arm")
+    skin = faces[arm[faces].sum(1) >= 2]
+    v = lbs(avatar.vertices, avatar.weights, avatar.rest_joints, np.asarray(quats), np.asarray(root))[0].astype(np.float64)
+    hand = [p.name for p in PROBES].index("left_hand")
+    exact = skin_distances(v, vertex_normals(v, faces), skin, v[surface.model.probes[hand]],
+                           border_vertices(skin, len(arm))).min()
+    row = (gaps.probe == hand) & (gaps.region == REGIONS.index("right_arm"))
+    assert exact < 0.005
+    assert row.any() and gaps.gap[row].min() < 0.015

@@ -143,7 +143,7 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
                  frames, part_centre_rest, part_radius, box_centre, box_half,
                  data, nearest, lo, top, strides, base, cell, vertex_region,
                  vertices, rest_joints, skin_joints, skin_weights, normals, ring_start, ring, walk_steps, walk_from,
-                 walk_reach):
+                 walk_reach, part_region):
     """Gaps of probe sets ``probes`` (indices into PROBES; reach and band per probe set) to the
     regions they are tested against, grouped by (probe set, region) in that order: probe (G,),
     region (G,), gap (G,), direction (G, 3), point (G, 3). Empty when nothing is near."""
@@ -234,7 +234,7 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
             if not worst < band[s]:
                 continue
             vertex = _sample(data, nearest, lo, top, strides, base, k, x, y, z, inv_cell, cell, out)
-            region = vertex_region[vertex]
+            region = part_region[k]
             if not region_allowed[probes[s], region]:
                 continue
             gx = glob[f, 0, 0] * out[1] + glob[f, 0, 1] * out[2] + glob[f, 0, 2] * out[3]

@@ -1,16 +1,18 @@
 """A body's surface for self-contacts: signed distance grids of its parts and probe points on its
 hands and forearms, built once per body (open3d), queried per frame with numpy.
 
-The skin is cut into rigid parts by the skinning weights (a vertex belongs to a part when the
-part's joints weigh at least ``PART_WEIGHT`` in it, so neighbouring parts overlap across their
-seams): pelvis, the three spine segments, the collars, head and neck, thighs, shins, upper arms,
-forearms, hands. Each part gets a grid of the signed distance to its own skin, in the rest pose
-and relative to the joint that carries it (the part moves rigidly with that joint's global
-rotation); each cell also stores the distance's gradient and the skin vertex nearest its closest
-point. A query gives the distance and the direction out of the part, both continuous (trilinear
-in the cell), corrected by how far skinning moves that nearest vertex from where the rigid part
-puts it (near joints that bend a lot, a bent spine's belly), and counts it for the region of
-that vertex's heaviest joint (torso, head, each leg, each hand, each arm).
+The skin is cut into regions by each vertex's heaviest joint (torso, head, each leg, each hand,
+each arm: where the evaluation cuts it) and into rigid parts by the skinning weights: a face is
+in a part when the part's joints weigh at least ``PART_WEIGHT`` in one of its vertices and two of
+its vertices are of the part's region (neighbouring parts of one region overlap across their
+seam; parts of two regions meet at it). Pelvis, the three spine segments, the collars, head and
+neck, thighs, shins, upper arms, forearms, hands. Each part gets a grid of the signed distance to
+its own skin, in the rest pose and relative to the joint that carries it (the part moves rigidly
+with that joint's global rotation); each cell also stores the distance's gradient and the skin
+vertex nearest its closest point. A query gives the distance and the direction out of the part,
+both continuous (trilinear in the cell), corrected by how far skinning moves that nearest vertex
+from where the rigid part puts it (near joints that bend a lot, a bent spine's belly), and
+counts it for the part's region.
 
 The sign of a part's distance: the face's normal where the closest point is inside a face, the
 angle-weighted vertex normals interpolated there on an edge or a vertex; negative inside. Where
@@ -68,7 +70,7 @@ WALK_STEPS = 32
 WALK_FROM = 0.01
 WALK_REACH = 0.04
 #: Bumped when the grids' layout or meaning changes: older cached models are rebuilt.
-MODEL_VERSION = 8
+MODEL_VERSION = 9
 
 
 @dataclass(frozen=True)
@@ -414,10 +416,14 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
     normals = vertex_normals(vertices, faces)
     blocks, nearest, frames, los, dims, bases, centres, radii = [], [], [], [], [], [], [], []
     row = 0
+    region_of = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES])[weights.argmax(1)]
     for spec in PARTS:
         cols = [JOINT_INDEX[n] for n in spec.joints]
         member = weights[:, cols].sum(1) >= PART_WEIGHT
-        part_faces = faces[member[faces].any(1)]
+        # Cut at the region's seam, as the evaluation cuts the skin: overlapping the neighbour's
+        # skin, a forearm's grid read a hand on it by the wrist as touching the other hand.
+        own = (region_of[faces] == REGIONS.index(spec.region)).sum(1) >= 2
+        part_faces = faces[member[faces].any(1) & own]
         frame = JOINT_INDEX[spec.frame]
         if len(part_faces) == 0:
             # No skin on this joint (a VRM's spine often skips a segment): a part never near.
@@ -551,6 +557,8 @@ for _i, _t in enumerate(TARGETS):
 REGION_ALLOWED = np.zeros((len(PROBES), len(REGIONS)), bool)
 for _i, _t in enumerate(TARGETS):
     REGION_ALLOWED[_i, list(_t.regions)] = True
+#: The region of each part (index into REGIONS).
+PART_REGION = np.array([REGIONS.index(p.region) for p in PARTS], np.int64)
 #: The region of a vertex by its heaviest joint (feet with their legs; -1: none).
 JOINT_REGION = {"pelvis": "torso", "spine1": "torso", "spine2": "torso", "spine3": "torso", "left_collar": "torso",
                 "right_collar": "torso", "neck": "head", "head": "head", "left_hip": "left_leg",
@@ -586,9 +594,7 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
     Broad phase: a part is measured when its bounding sphere comes within ``reach`` (per probe
     set or one value) of the probe set's, and then only at the probes within ``band`` (per probe
     set or one value; default BAND) of its skin's
-    box. Each distance counts for the region its nearest skin vertex belongs to by its heaviest
-    weight (parts overlap across their seams; a region is where the vertices are, as the
-    evaluation cuts the skin). A region's gap is the least of its probes'
+    box. Each distance counts for its part's region. A region's gap is the least of its probes'
     distances, each part moved rigidly by its joint and then corrected by how far skinning moves
     the nearest skin vertex out of that rigid place (a bent spine's belly), or, where skinning
     moved it more than WALK_FROM, measured on the skinned mesh from there: the nearest probe's;
@@ -603,4 +609,5 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
                             m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
                             m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
                             m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
-                            m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM), float(WALK_REACH)))
+                            m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM), float(WALK_REACH),
+                            PART_REGION))
