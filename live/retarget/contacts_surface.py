@@ -194,8 +194,7 @@ class SurfaceModel:
         object.__setattr__(self, "_normals", np.ascontiguousarray(self.normals, np.float64))
         object.__setattr__(self, "_ring_start", np.ascontiguousarray(self.ring_start, np.int64))
         object.__setattr__(self, "_ring", np.ascontiguousarray(self.ring, np.int64))
-        by_joint = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
-        object.__setattr__(self, "vertex_region", by_joint[np.asarray(self.skin_joints, np.int64)[:, 0]])
+        object.__setattr__(self, "vertex_region", JOINT_REGION_INDEX[np.asarray(self.skin_joints, np.int64)[:, 0]])
         # Each part's skin box (the grid less its margin), relative to its joint: centre, half size.
         top = self.lo + (dims - 1) * self.cell - GRID_MARGIN
         bottom = self.lo + GRID_MARGIN
@@ -416,12 +415,13 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
     normals = vertex_normals(vertices, faces)
     blocks, nearest, frames, los, dims, bases, centres, radii = [], [], [], [], [], [], [], []
     row = 0
-    region_of = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES])[weights.argmax(1)]
+    region_of = JOINT_REGION_INDEX[weights.argmax(1)]
     for spec in PARTS:
         cols = [JOINT_INDEX[n] for n in spec.joints]
         member = weights[:, cols].sum(1) >= PART_WEIGHT
-        # Cut at the region's seam, as the evaluation cuts the skin: overlapping the neighbour's
-        # skin, a forearm's grid read a hand on it by the wrist as touching the other hand.
+        # Cut at the region's seam, as the evaluation cuts the skin: overlapping the hand's skin,
+        # a forearm's grid counted its samples by the wrist for the hand, and a hand holding that
+        # forearm there read far from it.
         own = (region_of[faces] == REGIONS.index(spec.region)).sum(1) >= 2
         part_faces = faces[member[faces].any(1) & own]
         frame = JOINT_INDEX[spec.frame]
@@ -566,6 +566,8 @@ JOINT_REGION = {"pelvis": "torso", "spine1": "torso", "spine2": "torso", "spine3
                 "right_knee": "right_leg", "right_ankle": "right_leg", "right_foot": "right_leg",
                 "left_wrist": "left_hand", "right_wrist": "right_hand", "left_shoulder": "left_arm",
                 "left_elbow": "left_arm", "right_shoulder": "right_arm", "right_elbow": "right_arm"}
+#: JOINT_REGION as indices into REGIONS, per joint.
+JOINT_REGION_INDEX = np.array([REGIONS.index(JOINT_REGION[n]) for n in JOINT_NAMES], np.int64)
 
 
 @dataclass(frozen=True)
