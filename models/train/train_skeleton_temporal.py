@@ -408,7 +408,10 @@ def main(argv: list[str] | None = None) -> dict:
         "recipe": {"epochs": epochs, "lr": args.lr, "acc_weight": args.acc_weight, "batch": 256,
                    "optimizer": "AdamW, weight decay 1e-4, one-cycle", "net": args.net,
                    "loss": "L1 joints of 3 consecutive frames + acc_weight x acceleration error",
-                   "augmentation": "mirror (x -> -x, left/right swapped)"},
+                   "augmentation": "mirror (x -> -x, left/right swapped)",
+                   # Whether the training sequences were drawn as users' sensors see people
+                   # (sim.sensor_realism): models trained with and without it differ by millimetres.
+                   "realism": bool(args.realism)},
         "training": log, "data_seconds": data_seconds,
         "data": {split: {"sequences": int(len(d["found"])), "frames_per_sequence": SEQUENCE_FRAMES,
                          "found_frames": int(d["found"].sum()), "clips": int(len(np.unique(d["clip"]))),
