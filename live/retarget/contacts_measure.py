@@ -139,7 +139,7 @@ def _walk(v, region, p, steps, reach, transforms, vertices, normals, skin_joints
 
 @njit(cache=True, nogil=True)
 def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
-                 probe_vertices, probe_joint, probe_centre, probe_radius, allowed, region_allowed,
+                 probe_vertices, probe_joint, probe_centre, probe_radius, allowed,
                  frames, part_centre_rest, part_radius, box_centre, box_half,
                  data, nearest, lo, top, strides, base, cell, vertex_region,
                  vertices, rest_joints, skin_joints, skin_weights, normals, ring_start, ring, walk_steps, walk_from,
@@ -148,7 +148,7 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
     regions they are tested against, grouped by (probe set, region) in that order: probe (G,),
     region (G,), gap (G,), direction (G, 3), point (G, 3). Empty when nothing is near."""
     n_slots, count = len(probes), probe_vertices.shape[1]
-    n_parts, n_regions = len(frames), region_allowed.shape[1]
+    n_parts, n_regions = len(frames), int(part_region.max()) + 1  # every region has a part
     # Each part's bounding sphere in the pose.
     part_centre = np.empty((n_parts, 3))
     for k in range(n_parts):
@@ -234,9 +234,7 @@ def probe_gaps(glob, pos, scale, probes, reach, band, skin_slack, tau,
             if not worst < band[s]:
                 continue
             vertex = _sample(data, nearest, lo, top, strides, base, k, x, y, z, inv_cell, cell, out)
-            region = part_region[k]
-            if not region_allowed[probes[s], region]:
-                continue
+            region = part_region[k]  # a part allowed for a probe set is of a region allowed for it
             gx = glob[f, 0, 0] * out[1] + glob[f, 0, 1] * out[2] + glob[f, 0, 2] * out[3]
             gy = glob[f, 1, 0] * out[1] + glob[f, 1, 1] * out[2] + glob[f, 1, 2] * out[3]
             gz = glob[f, 2, 0] * out[1] + glob[f, 2, 1] * out[2] + glob[f, 2, 2] * out[3]

@@ -422,8 +422,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         # Cut at the region's seam, as the evaluation cuts the skin: overlapping the hand's skin,
         # a forearm's grid counted its samples by the wrist for the hand, and a hand holding that
         # forearm there read far from it.
-        own = (region_of[faces] == REGIONS.index(spec.region)).sum(1) >= 2
-        part_faces = faces[member[faces].any(1) & own]
+        part_faces = faces[member[faces].any(1) & region_faces(faces, region_of, REGIONS.index(spec.region))]
         frame = JOINT_INDEX[spec.frame]
         if len(part_faces) == 0:
             # No skin on this joint (a VRM's spine often skips a segment): a part never near.
@@ -461,6 +460,12 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
                         centre=np.array(centres), radius=np.array(radii), vertices=vertices.copy(),
                         skin_joints=heavy.astype(np.int64), skin_weights=heavy_w, normals=normals,
                         ring_start=ring_start, ring=ring, probes=tuple(probes), rest_joints=rest.copy(), cell=float(cell))
+
+
+def region_faces(faces: np.ndarray, vertex_region: np.ndarray, region: int) -> np.ndarray:
+    """(F,) whether each face is in a region's skin: two or more of its vertices are (the cut of
+    the parts' grids and of the evaluation's exact distances)."""
+    return (vertex_region[faces] == region).sum(1) >= 2
 
 
 def vertex_rings(faces: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -553,12 +558,9 @@ ALLOWED = np.zeros((len(PROBES), len(PARTS)), bool)
 for _i, _t in enumerate(TARGETS):
     for _parts in _t.parts:
         ALLOWED[_i, list(_parts)] = True
-#: REGION_ALLOWED[i, r]: probe set i is tested against region r.
-REGION_ALLOWED = np.zeros((len(PROBES), len(REGIONS)), bool)
-for _i, _t in enumerate(TARGETS):
-    REGION_ALLOWED[_i, list(_t.regions)] = True
 #: The region of each part (index into REGIONS).
 PART_REGION = np.array([REGIONS.index(p.region) for p in PARTS], np.int64)
+assert set(PART_REGION.tolist()) == set(range(len(REGIONS))), "every region needs a part"
 #: The region of a vertex by its heaviest joint (feet with their legs; -1: none).
 JOINT_REGION = {"pelvis": "torso", "spine1": "torso", "spine2": "torso", "spine3": "torso", "left_collar": "torso",
                 "right_collar": "torso", "neck": "head", "head": "head", "left_hip": "left_leg",
@@ -608,7 +610,7 @@ def measure(surface: BodySurface, glob: np.ndarray, pos: np.ndarray, probes: np.
                          for v in (reach, band))
     return Gaps(*probe_gaps(np.ascontiguousarray(glob, np.float64), np.ascontiguousarray(pos, np.float64),
                             float(surface.scale), probes, reach_of, band_of, float(SKIN_SLACK), float(tau),
-                            m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED, REGION_ALLOWED,
+                            m.probe_vertices, m.probe_joint, m.probe_centre, m.probe_radius, ALLOWED,
                             m.frames, m.centre, m.radius, m.box_centre, m.box_half, m._data, m.nearest, m.lo,
                             m._top, m._strides, m.base, float(m.cell), m.vertex_region, m.vertices, m.rest_joints,
                             m._skin_joints, m._skin_weights, m._normals, m._ring_start, m._ring, int(WALK_STEPS), float(WALK_FROM), float(WALK_REACH),
