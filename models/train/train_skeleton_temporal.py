@@ -351,7 +351,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--anny-share", type=float, default=0.7,
                    help="share of those sequences on an Anny body (default 0.7: 30%% of 7,000)")
     # Off by default: trained on realism sequences the model was 1-3 mm worse on every held-out
-    # set (docs/skeleton.md, "Temporal model"); the regressor it runs behind is the one trained
+    # set (docs/skeleton.md, "Measured"); the regressor it runs behind is the one trained
     # for users' sensors.
     p.add_argument("--realism", action=argparse.BooleanOptionalAction, default=False,
                    help="training sequences as users' sensors see people (sim.sensor_realism; default off)")
