@@ -39,7 +39,7 @@ def rows_of(avatar_name: str) -> list[tuple]:
     # Each region's skin as the evaluation cuts it: faces of two or more of its vertices (a
     # vertex's region: its heaviest joint's, as the measure assigns it).
     region_of = surface.model.vertex_region
-    skins = {r: faces[cs.region_faces(faces, region_of, k)] for k, r in enumerate(cs.REGIONS)}
+    skins = {r: faces[cs.skin_faces(faces, region_of == k)] for k, r in enumerate(cs.REGIONS)}
     borders = {r: cs.border_vertices(f, len(region_of)) for r, f in skins.items()}
     out = []
     for take in TUNING_TAKES:

@@ -21,8 +21,8 @@ from live.retarget.contacts_surface import (
     REGIONS,
     body_surface,
     measure,
-    region_faces,
     signed_distances,
+    skin_faces,
     vertex_normals,
     winding_numbers,
 )
@@ -399,7 +399,7 @@ def test_the_measure_follows_the_skinned_mesh_where_a_bent_spine_moves_the_belly
     surface = body_surface(avatar)
     faces = np.asarray(avatar.faces, np.int64)
     region_of = surface.model.vertex_region  # by each vertex's heaviest joint
-    skin = faces[region_faces(faces, region_of, REGIONS.index("torso"))]
+    skin = faces[skin_faces(faces, region_of == REGIONS.index("torso"))]
     border = border_vertices(skin, len(region_of))
     errors = []
     for t, frame in enumerate(joints):
@@ -443,7 +443,7 @@ def test_a_hand_on_the_other_forearm_by_its_wrist_reads_as_near():
     gaps = measure(surface, np.array(retargeter.last_globals), np.asarray(pos, np.float64), ALL_PROBES, 0.1, 0.003, 0.1)
     faces = np.asarray(avatar.faces, np.int64)
     region_of = surface.model.vertex_region
-    skin = faces[region_faces(faces, region_of, REGIONS.index("right_arm"))]
+    skin = faces[skin_faces(faces, region_of == REGIONS.index("right_arm"))]
     v = lbs(avatar.vertices, avatar.weights, avatar.rest_joints, np.asarray(quats), np.asarray(root))[0].astype(np.float64)
     hand = [p.name for p in PROBES].index("left_hand")
     exact = skin_distances(v, vertex_normals(v, faces), skin, v[surface.model.probes[hand]],

@@ -109,14 +109,14 @@ def _gaps(kind: str, body, joints: np.ndarray) -> np.ndarray:
     """(T, 2) each hand's exact gap to what it should touch (the hips' skin or the other hand's)."""
     from live.body.skinning import lbs
     from live.retarget.analytic import local_rotations_from_joints
-    from live.retarget.contacts_surface import border_vertices, signed_distances, vertex_normals
+    from live.retarget.contacts_surface import border_vertices, signed_distances, skin_faces, vertex_normals
 
     faces = np.asarray(body.faces, np.int64)
     dominant = np.asarray(body.weights).argmax(1)
     hands = [np.flatnonzero(dominant == _J[f"{side}_wrist"]) for side in ("left", "right")]
     torso = np.isin(dominant, [_J[n] for n in ("pelvis", "spine1", "spine2", "spine3", "left_collar", "right_collar")])
     masks = [torso, torso] if kind == "hands-on-hips" else [dominant == _J["right_wrist"], dominant == _J["left_wrist"]]
-    skins = [faces[m[faces].sum(1) >= 2] for m in masks]
+    skins = [faces[skin_faces(faces, m)] for m in masks]
     borders = [border_vertices(f, len(dominant)) for f in skins]
     rot = local_rotations_from_joints(joints, body.rest_joints)
     verts = lbs(body.vertices, body.weights, body.rest_joints, rot, joints[:, 0])

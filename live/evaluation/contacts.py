@@ -61,7 +61,7 @@ class BodyRegions:
 
     @classmethod
     def of(cls, body) -> BodyRegions:
-        from live.retarget.contacts_surface import border_vertices
+        from live.retarget.contacts_surface import border_vertices, skin_faces
 
         dominant = np.asarray(body.weights).argmax(1)
         faces = np.asarray(body.faces, np.int64)
@@ -72,7 +72,7 @@ class BodyRegions:
         groups = {f"{s}_hand": (f"{s}_wrist",) for s in SIDES}
         groups.update({f"{s}_arm": (f"{s}_shoulder", f"{s}_elbow") for s in SIDES})
         groups.update({k: v for k, v in REGIONS.items() if v is not None})
-        skins = {k: faces[members(v)[faces].sum(1) >= 2] for k, v in groups.items()}
+        skins = {k: faces[skin_faces(faces, members(v))] for k, v in groups.items()}
         return cls(hand=tuple(np.flatnonzero(members((f"{s}_wrist",))) for s in SIDES),
                    forearm=tuple(np.flatnonzero(members((f"{s}_elbow",))) for s in SIDES),
                    skins=skins, borders={k: border_vertices(f, len(dominant)) for k, f in skins.items()})

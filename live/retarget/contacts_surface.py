@@ -422,7 +422,7 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
         # Cut at the region's seam, as the evaluation cuts the skin: overlapping the hand's skin,
         # a forearm's grid counted its samples by the wrist for the hand, and a hand holding that
         # forearm there read far from it.
-        part_faces = faces[member[faces].any(1) & region_faces(faces, region_of, REGIONS.index(spec.region))]
+        part_faces = faces[member[faces].any(1) & skin_faces(faces, region_of == REGIONS.index(spec.region))]
         frame = JOINT_INDEX[spec.frame]
         if len(part_faces) == 0:
             # No skin on this joint (a VRM's spine often skips a segment): a part never near.
@@ -462,10 +462,11 @@ def build_surface_model(body, cell: float = GRID_CELL) -> SurfaceModel:
                         ring_start=ring_start, ring=ring, probes=tuple(probes), rest_joints=rest.copy(), cell=float(cell))
 
 
-def region_faces(faces: np.ndarray, vertex_region: np.ndarray, region: int) -> np.ndarray:
-    """(F,) whether each face is in a region's skin: two or more of its vertices are (the cut of
-    the parts' grids and of the evaluation's exact distances)."""
-    return (vertex_region[faces] == region).sum(1) >= 2
+def skin_faces(faces: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """(F,) whether each face is in the skin of the vertices ``member`` (V,) marks: two or more of
+    its vertices are (the cut of the parts' grids, of the evaluation's regions and of the contact
+    clips' targets)."""
+    return member[faces].sum(1) >= 2
 
 
 def vertex_rings(faces: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
