@@ -187,3 +187,32 @@ def test_online_model_restarts_its_history_when_it_strays_from_the_frame():
         out = refiner(int(t[k]), turned, conf, to_world)
         assert np.linalg.norm(out.joints - turned, axis=1).mean() < RESTART_DEVIATION_M
     assert refiner.restarts == 1
+
+
+@pytest.mark.parametrize("lag", [0, 2])
+def test_history_starts_again_where_the_frames_jump_to_something_else(lag):
+    from live.body.library import load_body
+    from models.skeleton.temporal import TemporalRefiner, temporal_model_path
+
+    rest = np.asarray(load_body("adult_male_average").rest_joints, np.float64)
+    rest = rest - rest[0] * np.array([1.0, 0.0, 1.0])
+    clutter, performer = rest + np.array([1.5, 0.0, 0.5]), rest  # the finder's pick moves 1.6 m
+    path, conf, to_world = temporal_model_path(lag), np.ones(22), np.eye(4)
+    t = 1_000_000_000 + np.round(np.arange(30) * 1e9 / 30).astype(np.int64)
+    refiner, fresh = TemporalRefiner(path), TemporalRefiner(path)
+    for k in range(12):  # on a still box figure first
+        refiner(int(t[k]), clutter, conf, to_world)
+    assert refiner.jumps == 0
+    # From the jump on, the estimates are those of a refiner that never saw the figure.
+    outs, fresh_outs = [], []
+    for k in range(12, 30):
+        body = performer + 0.01 * np.sin(k) * np.array([1.0, 0.0, 0.0])
+        outs.append(refiner(int(t[k]), body, conf, to_world))
+        fresh_outs.append(fresh(int(t[k]), body, conf, to_world))
+    assert refiner.jumps == 1
+    after = [o for o in outs if o is not None and o.t_ns >= t[12]]
+    assert len(after) == len(fresh_outs) - lag
+    for a, b in zip(after, [o for o in fresh_outs if o is not None]):
+        assert a.t_ns == b.t_ns and np.array_equal(a.joints, b.joints)
+    # A lagging model still owes, and gives, the figure's last frames before the jump.
+    assert [o.t_ns for o in outs if o is not None and o.t_ns < t[12]] == [int(x) for x in t[12 - lag:12]]

@@ -42,6 +42,12 @@ DEFAULT_TEMPORAL_MODEL = WEIGHTS_DIR / "skeleton_temporal.onnx"
 #: still catching up with (restarting there made the avatar's jitter 40 % worse).
 RESTART_DEVIATION_M = 0.10
 RESTART_FRAMES = 2
+#: A frame whose joints lie farther than this (m, mean over joints) from the last frame's is of
+#: something else (the finder moved from clutter to the performer, or back; the finder's own
+#: "same person" distance): no one moves half a metre in a frame, and the other thing's history
+#: pulled the estimates toward it for several frames. The history starts again at that frame
+#: (a lagging model still estimates the frames before it from what came before it).
+RESTART_JUMP_M = 0.5
 
 
 def temporal_model_path(lag: int = 0, regressor_path: Path | None = None) -> Path:
@@ -138,6 +144,7 @@ class TemporalRefiner:
                              f"got {[i.shape for i in inputs]}")
         self._input = inputs[0].name
         self.restarts = 0  # histories dropped because the model strayed from the frame (RESTART_DEVIATION_M)
+        self.jumps = 0  # histories dropped because the frame jumped to something else (RESTART_JUMP_M)
         self.reset()
 
     @property
@@ -154,6 +161,7 @@ class TemporalRefiner:
         self._joints = np.zeros((size, NUM_JOINTS, 3))
         self._conf = np.zeros((size, NUM_JOINTS))
         self._start = self._end = 0
+        self._cut: int | None = None  # index of the first frame after a jump, while frames before it are owed
         self._emitted: int | None = None
         self._to_world: np.ndarray | None = None
         self._straying = 0
@@ -168,6 +176,8 @@ class TemporalRefiner:
             for arr in (self._times, self._joints, self._conf):
                 arr[:b - a] = arr[a:b]
             self._start, self._end = 0, b - a
+            if self._cut is not None:
+                self._cut -= a
         e = self._end
         self._times[e], self._joints[e], self._conf[e] = t_ns, joints_world, confidence
         self._end = e = e + 1
@@ -176,6 +186,8 @@ class TemporalRefiner:
             reach_ns = (self.window + self.lag + 1) * 1e9 / self.fps
             stale = int(np.searchsorted(self._times[self._start + 1:e], t_ns - reach_ns, side="left"))
             self._start += min(stale, n - 2)
+        if self._cut is not None and self._cut <= self._start:
+            self._cut = None
 
     def matches(self, regressor_path: Path) -> bool:
         """Whether this model was trained on the outputs of that regressor file, or measured behind
@@ -192,15 +204,21 @@ class TemporalRefiner:
         t_ns = int(t_ns)
         if self._end > self._start and t_ns <= self._times[self._end - 1]:
             self.reset()  # time went backwards (a new replay): start over
+        jump = self._end > self._start and \
+            np.linalg.norm(joints_world - self._joints[self._end - 1], axis=1).mean() > RESTART_JUMP_M
         self._append(t_ns, joints_world, confidence)
+        if jump:
+            self.jumps += 1
+            self._cut = self._end - 1
         self._to_world = to_world
         times = self._times[self._start:self._end]
         # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
         k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
-        out = self._estimate(k)
-        raw = self._joints[self._start + k]
+        at = self._start + k
+        out = self._estimate(at)
+        raw = self._joints[at]
         strays = self.lag == 0 and np.linalg.norm(out.joints - raw, axis=1).mean() > RESTART_DEVIATION_M
         self._straying = self._straying + 1 if strays else 0
         if self._straying >= RESTART_FRAMES:
@@ -210,7 +228,7 @@ class TemporalRefiner:
             # given, and the history starts again from this frame. (A lagging model sees the
             # frames after it too, and strays for good reason: restarting it only costs.)
             self.restarts += 1
-            self._start += k
+            self._start = at
             out = RefinedSkeleton(t_ns=out.t_ns, joints=raw.copy(), confidence=out.confidence)
         return out
 
@@ -224,19 +242,25 @@ class TemporalRefiner:
             return []
         times = self._times[self._start:self._end]
         first = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
-        return [self._estimate(k) for k in range(first, len(times))]
+        return [self._estimate(at) for at in range(self._start + first, self._end)]
 
-    def _estimate(self, k: int) -> RefinedSkeleton:
-        """The model's estimate of the k-th live observation, in the newest frame's person frame."""
+    def _estimate(self, at: int) -> RefinedSkeleton:
+        """The model's estimate of the observation at index ``at``, in the newest frame's person
+        frame. Before a jump, from the history up to the jump (later samples repeat the last one
+        before it, flagged as not observed, as at a stream's end); from the jump on, from the
+        history that starts there."""
+        if self._cut is not None and at >= self._cut:
+            self._start, self._cut = self._cut, None
         live = slice(self._start, self._end)
         times, to_world = self._times[live], self._to_world
-        self._emitted = int(times[k])
-        anchor_s = times[k] * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
+        t_at = int(self._times[at])
+        self._emitted = t_at
+        anchor_s = t_at * 1e-9 + self.lag_s  # the window's newest sample, lag samples after it
         win = sample_history(times * 1e-9, self._joints[live], self._conf[live], anchor_s, to_world, self.window,
                              self.fps)
         local = self.session.run(None, {self._input: win.features()[None]})[0][0].astype(np.float64)
-        return RefinedSkeleton(t_ns=int(times[k]), joints=local @ to_world[:3, :3].T + to_world[:3, 3],
-                               confidence=self._conf[self._start + k].copy())
+        return RefinedSkeleton(t_ns=t_at, joints=local @ to_world[:3, :3].T + to_world[:3, 3],
+                               confidence=self._conf[at].copy())
 
 
 def file_sha256(path: Path) -> str:
