@@ -329,3 +329,13 @@ def test_edge_test_at_pixels_matches_a_whole_image_reference():
         ref[b] |= both & (jump > z[b] * share)
     idx = rng.choice(z.size, 300, replace=False)
     np.testing.assert_array_equal(edge_pixels_at(z, z > 0, idx, 0.15), ref.reshape(-1)[idx])
+
+
+def test_floor_without_one_in_view_lies_under_the_feet_or_below_a_close_up():
+    from models.skeleton.ground import ASSUMED_STATURE_M, FEET_BELOW_LOWEST_M, floor_under_person
+
+    # A whole body (or a crouch ending inside the image): just below its lowest points.
+    assert floor_under_person(0.4, 2.1) == pytest.approx(0.4 - FEET_BELOW_LOWEST_M)
+    assert floor_under_person(0.4, 1.4) == pytest.approx(0.4 - FEET_BELOW_LOWEST_M)
+    # An upper body cut by the image's bottom edge: an average stature below the top of the head.
+    assert floor_under_person(0.9, 1.6, cut_below=True) == pytest.approx(1.6 - ASSUMED_STATURE_M)
