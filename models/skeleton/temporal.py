@@ -45,8 +45,9 @@ RESTART_FRAMES = 2
 #: A frame whose joints lie farther than this (m, mean over joints) from the last frame's is of
 #: something else (the finder moved from clutter to the performer, or back; the finder's own
 #: "same person" distance): no one moves half a metre in a frame, and the other thing's history
-#: pulled the estimates toward it for several frames. The history starts again at that frame
-#: (a lagging model still estimates the frames before it from what came before it).
+#: pulled the estimates toward it for several frames. The history starts again at that frame (a
+#: lagging model still estimates the frames before it as before, its look-ahead reaching past the
+#: jump: the performer's frames pull the last ones on the clutter toward the truth).
 RESTART_JUMP_M = 0.5
 
 
@@ -246,9 +247,8 @@ class TemporalRefiner:
 
     def _estimate(self, at: int) -> RefinedSkeleton:
         """The model's estimate of the observation at index ``at``, in the newest frame's person
-        frame. Before a jump, from the history up to the jump (later samples repeat the last one
-        before it, flagged as not observed, as at a stream's end); from the jump on, from the
-        history that starts there."""
+        frame: from the whole history for a frame before a jump (a lagging model's look-ahead
+        reaches past it), from the history that starts at the jump for the frames from it on."""
         if self._cut is not None and at >= self._cut:
             self._start, self._cut = self._cut, None
         live = slice(self._start, self._end)
