@@ -233,6 +233,26 @@ def test_contact_clips_put_the_performers_hands_on_its_hips_and_together():
     assert closed.any() and np.all(gaps[closed] < 0.01) and np.all(gaps[closed] > -0.02)
 
 
+@needs_bvh
+def test_clapping_hands_stay_clear_of_the_performers_own_face():
+    """Hands follow their forearms: clapped too high, the fingers went into the chin and the
+    face. The claps of the held-out take keep them clear of the head."""
+    from live.body.skinning import lbs
+    from live.evaluation.contact_clips import take_motion
+    from live.evaluation.contacts import REGIONS, BodyRegions, contact_geometry
+    from live.evaluation.retarget import _on_body
+    from live.retarget.analytic import local_rotations_from_joints
+
+    body = load_body("adult_male_average")
+    clap = take_motion("mb_08_04.bvh", 0, 150, "clapping", body)
+    root, joints = _on_body(clap, body.rest_joints)
+    frames = np.r_[20:26, 34:44, 60:66]  # claps where the fingers reached the face
+    pose = local_rotations_from_joints(joints[frames], body.rest_joints)
+    verts = lbs(body.vertices, body.weights, body.rest_joints, pose, root[frames])
+    gaps, _ = contact_geometry(BodyRegions.of(body), np.asarray(body.faces, np.int64), verts)
+    assert gaps[:, :, list(REGIONS).index("head")].min() > 0.01
+
+
 def test_an_avatar_without_skin_on_some_joints_still_keeps_contacts():
     """A VRM's skin often skips a spine segment: that part is never near, the rest works."""
     vrm = assets.shared_data_dir() / "avatars" / "godette_vrm0.vrm"

@@ -4,8 +4,9 @@ The CMU clips in ../shared/data/bvh have hands on the belly, washing, hands toge
 but no clapping and no hands-on-hips take, and the held-out subjects (7, 8, 12, 16) only walk.
 ``contact_clip`` turns a held-out subject's walk into one: the legs, the trunk and the head keep
 the take; the arms are posed by two-bone IK so that, on the performer's own body, the hands rest
-on the sides of the hips (elbows out and back) or clap in front of the chest (1.5 claps a second,
-the hands together a third of each cycle). The hands are then moved, frame by frame, until the
+on the sides of the hips (elbows out and back) or clap in front of the lower chest (1.5 claps a
+second, the hands together a third of each cycle; higher, hands that follow their forearms put
+the fingers into the performer's own chin and face). The hands are then moved, frame by frame, until the
 skinned hand touches the hip or the other hand (signed distance on the posed mesh within 2 mm),
 so the performer's contacts are real ones. Hands follow their forearms, as in any 22-joint
 skeleton.
@@ -26,6 +27,7 @@ _ARMS = ((_J["left_shoulder"], _J["left_elbow"], _J["left_wrist"], 1.0),
          (_J["right_shoulder"], _J["right_elbow"], _J["right_wrist"], -1.0))
 CLAP_HZ = 1.5
 CLAP_OPEN = 0.32  # m between the hands at the widest
+CLAP_HEIGHT = 0.7  # of the pelvis-to-upper-chest (spine3) height: where the wrists meet
 
 
 def _arm_ik(shoulder: np.ndarray, elbow: np.ndarray, wrist: np.ndarray, target: np.ndarray, pole: np.ndarray
@@ -85,7 +87,7 @@ def _targets(kind: str, body, joints: np.ndarray, axes: np.ndarray, fps: float, 
             local = local[None] + push[:, a, None] * np.array([sign, 0.0, 0.0])
             out[:, a] = pelvis + np.einsum("tij,tj->ti", axes, local)
     else:
-        chest = 0.85 * (rest[_J["spine3"], 1] - rest[_J["pelvis"], 1])
+        chest = CLAP_HEIGHT * (rest[_J["spine3"], 1] - rest[_J["pelvis"], 1])
         opening = _clap_gap(np.arange(len(joints)) / fps)
         for a, sign in enumerate((1.0, -1.0)):
             local = np.zeros((len(joints), 3))
