@@ -6,9 +6,9 @@ but no clapping and no hands-on-hips take, and the held-out subjects (7, 8, 12, 
 the take; the arms are posed by two-bone IK so that, on the performer's own body, the hands rest
 on the sides of the hips (elbows out and back) or clap in front of the lower chest (1.5 claps a
 second, the hands together a third of each cycle; higher, hands that follow their forearms put
-the fingers into the performer's own chin and face). The hands are then moved, frame by frame, until the
-skinned hand touches the hip or the other hand (signed distance on the posed mesh within 2 mm),
-so the performer's contacts are real ones. Hands follow their forearms, as in any 22-joint
+the fingers into the performer's own chin and face). The hands are then moved, frame by frame,
+until the skinned hand touches the hip or the other hand (signed distance on the posed mesh
+within 2 mm), so the performer's contacts are real ones. Hands follow their forearms, as in any 22-joint
 skeleton.
 """
 
