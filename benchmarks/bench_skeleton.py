@@ -1,11 +1,14 @@
 """Per-frame cost of the skeleton stage on 640x400 OAK-D frames.
 
-Run: .venv/bin/python benchmarks/bench_skeleton.py [--frames 150] [--threads 1]
+Run: .venv/bin/python benchmarks/bench_skeleton.py [--frames 150] [--threads 1] [--against OLD.onnx]
 Renders a real CMU clip on a body of the library (capsules when the library is missing) with the
 virtual OAK-D in a room with clutter, then times, per frame: the person finder (preprocess), the
 model alone (ours and the reference PointNet, same process, same input), and the whole stage
 (preprocess + model + flip guard + temporal model + One Euro filter). Prints median and p95 (ms);
 with a model whose card asks for the depth-edge test, the finder without it too, for the ratio.
+With --against, another regressor (e.g. a previous shipped one, with its card beside it) is timed
+in the same process, the two taking turns frame by frame, model alone and whole stage, for the
+ratio of their medians.
 """
 
 from __future__ import annotations
@@ -80,10 +83,28 @@ def timed(fn, items, warmup: int = 10) -> tuple[float, float]:
     return p["p50"], p["p95"]
 
 
+def against(other: Path, frames: list[DepthFrame], clouds: list, threads: int) -> list[tuple[str, float, float]]:
+    """The shipped regressor and ``other`` in turns, frame by frame: model alone (each on a
+    cloud sampled by its own finder settings) and whole stage."""
+    regs = [SkeletonRegressor(p, threads=threads) for p in (DEFAULT_MODEL, other)]
+    own_clouds = [[c for c in (PersonFinder(r.preprocess_config()).find(f) for f in frames) if c] for r in regs]
+    pairs = list(zip(*own_clouds)) * 2
+    model = timed_alternating([lambda pc, r=r, k=k: r(pc[k].points) for k, r in enumerate(regs)], pairs)
+    stages = [SkeletonStage(p, threads=threads) for p in (DEFAULT_MODEL, other)]
+    stage = timed_alternating([s.estimate for s in stages], frames)
+    rows = []
+    for what, res in (("model alone", model), ("whole stage", stage)):
+        for name, (med, p95) in zip(("shipped", "other"), res):
+            rows.append((f"{what}, in turns: {name}", med, p95))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=150)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--against", type=Path, default=None, metavar="ONNX",
+                   help="another regressor timed in turns with the shipped one (ratio of medians)")
     args = p.parse_args(argv)
     frames = render_frames(args.frames)
     print(f"{len(frames)} OAK-D 640x400 frames, onnxruntime threads={args.threads}")
@@ -109,6 +130,8 @@ def main(argv: list[str] | None = None) -> None:
         if stage.temporal is not None:
             plain = SkeletonStage(path, threads=args.threads, temporal=False)
             rows.append((f"whole stage: {label}, One Euro only", *timed(plain.estimate, frames)))
+    if args.against is not None:
+        rows += against(args.against, frames, clouds, args.threads)
     print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
     for name, med, p95 in rows:
         print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")
@@ -116,6 +139,10 @@ def main(argv: list[str] | None = None) -> None:
     if "preprocess without the edge test" in by_name:
         print("preprocess: with / without the edge test (medians, same process) = "
               f"{by_name['preprocess (PersonFinder)'] / by_name['preprocess without the edge test']:.2f}")
+    if args.against is not None:
+        for what in ("model alone", "whole stage"):
+            print(f"{what}: shipped / {args.against.name} (medians, in turns, same process) = "
+                  f"{by_name[f'{what}, in turns: shipped'] / by_name[f'{what}, in turns: other']:.2f}")
     for what in ("model alone", "whole stage"):
         ours = [m for n, m in by_name.items() if n.startswith(f"{what}: ours") and "One Euro" not in n]
         ref = [m for n, m in by_name.items() if n.startswith(f"{what}: baseline")]

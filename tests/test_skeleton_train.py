@@ -233,3 +233,31 @@ def test_weight_quantization_keeps_unselected_layers_in_float32(tmp_path):
     np.testing.assert_allclose(got, want, atol=0.05 * np.abs(want).max())
     with pytest.raises(ValueError, match="quantized already"):
         quantize_matmuls(dst, tmp_path / "again.onnx", quantize=lambda name: True)
+
+
+def test_fine_tune_reads_more_points_than_its_init_was_exported_with(tmp_path):
+    """--num-points / refine_k above the init file's: the deployed file is read at its own point
+    count (its card's), and the network then reads the recipe's (the weights depend on neither)."""
+    import json
+
+    from models.train.reexport_skeleton import run_onnx
+    from models.train.skeleton_nets import export_onnx
+    from models.train.train_skeleton import Recipe, train_model
+
+    path = tmp_path / "skeleton.onnx"
+    export_onnx(_trained_looking_voting_net(), str(path), 64)
+    path.with_suffix(".json").write_text(json.dumps({"num_points": 64}))
+    clouds = _clouds(6, 96).numpy()
+    train = {"points": clouds, "joints": np.zeros((6, 22, 3), np.float32)}
+    recipe = Recipe("ours", epochs=1, batch=3, lr=1e-12, loss="l1", num_points=96, schedule="constant",
+                    max_steps=1, net={"refine_k": 12, "refine_width": 16})
+    tuned, log = train_model(recipe, train, seed=1, progress=False, init=path)
+    assert log["steps"] == 1
+    x = clouds[:2, :64] + np.float32(0.01)
+    tuned.refine[0].k = 8  # the file's own reading: the same function
+    with torch.no_grad():
+        assert np.abs(tuned.eval()(torch.from_numpy(x)).numpy() - run_onnx(path, x)).max() < 0.05
+    wide = tmp_path / "wide.onnx"
+    tuned.refine[0].k = 12
+    export_onnx(tuned, str(wide), 96)
+    assert run_onnx(wide, clouds[:2]).shape == (2, 22, 3)

@@ -91,7 +91,10 @@ def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True,
     if init is not None:
         from models.train.reexport_skeleton import load_export
 
-        model = load_export(init, model, recipe.num_points, train["points"][:256, :recipe.num_points]).train()
+        # The file is read at the point count it was exported with, which may differ from this
+        # recipe's: the weights do not depend on it.
+        n_init = _card_points(init, recipe.num_points)
+        model = load_export(init, model, n_init, train["points"][:256, :n_init]).train()
     opt = torch.optim.Adam(model.parameters(), lr=recipe.lr)
     steps_per_epoch = len(train["points"]) // recipe.batch
     total = max(steps_per_epoch * recipe.epochs, 1)
@@ -131,6 +134,12 @@ def train_model(recipe: Recipe, train: dict, seed: int, progress: bool = True,
     bar.close()
     log["seconds"] = round(time.monotonic() - t0, 1)
     return model.eval(), log
+
+
+def _card_points(onnx_path: Path, default: int) -> int:
+    """The point count a regressor export was trained on (its card's; ``default`` without one)."""
+    card = onnx_path.with_suffix(".json")
+    return int(json.loads(card.read_text()).get("num_points", default)) if card.is_file() else default
 
 
 @torch.no_grad()
@@ -216,6 +225,8 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--lr", type=float, default=None, help="override the recipe's peak learning rate")
     p.add_argument("--init", type=Path, default=None, metavar="ONNX",
                    help="fine-tune: start from an export of the same network, e.g. the shipped one (docs/skeleton.md)")
+    p.add_argument("--num-points", type=int, default=None, metavar="N",
+                   help="points the network reads per cloud (default 256; at most the 512 stored per sample)")
     p.add_argument("--net", type=json.loads, default=None, metavar="JSON",
                    help='override the network options of "ours", e.g. \'{"refine_k": 0}\' (ablations)')
     p.add_argument("--anny", type=int, default=None, metavar="N",
@@ -295,6 +306,8 @@ def main(argv: list[str] | None = None) -> dict:
             recipe = Recipe(**{**recipe.__dict__, "net": args.net})
         if args.lr is not None:
             recipe = Recipe(**{**recipe.__dict__, "lr": args.lr})
+        if args.num_points is not None:
+            recipe = Recipe(**{**recipe.__dict__, "num_points": args.num_points})
         init = args.init if kind == "ours" else None
         model, log = train_model(recipe, data["train"], seed=args.seed, progress=progress, init=init)
         if init is not None:
