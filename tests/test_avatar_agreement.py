@@ -336,10 +336,13 @@ def test_the_avatar_faces_the_camera_and_mirrors_nothing(runs):
         dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
         c = np.sum(da * dp, 1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
         # Hands close together leave their left-right direction to a few mm of noise: judged
-        # where the performer's are at least 60 % of their usual distance apart.
+        # where the performer's are at least 60 % of their usual distance apart. A mirror gives
+        # a negative cosine; other proportions turn the line between hands 20-25 cm apart by up
+        # to ~30 degrees (cosine 0.88 in one frame of the demo; 0.95 and more elsewhere).
         gap = np.linalg.norm(dp, axis=1)
         apart = gap > 0.6 * np.median(gap)
-        assert apart.sum() > 20 and c[apart].min() > 0.9, (a, c[apart].min())
+        assert apart.sum() > 20 and c[apart].min() > 0.8, (a, c[apart].min())
+        assert np.median(c[apart]) > 0.98, (a, np.median(c[apart]))
 
 
 # ----------------------------------------------------------------------------- Blender (optional)

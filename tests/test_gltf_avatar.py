@@ -160,15 +160,17 @@ def test_demo_onto_godette(tmp_path, capsys):
     np.testing.assert_allclose(joints[1], joints[0], atol=1e-3)
     _check_bvh_names(tmp_path)
     performer = np.load(tmp_path / "vrm0" / "skeleton.npz")["joints"]
-    for a, b, least in (("left_hip", "right_hip", 0.99), ("left_wrist", "right_wrist", 0.9)):
+    for a, b, least in (("left_hip", "right_hip", 0.99), ("left_wrist", "right_wrist", 0.8)):
         da = joints[0][:, JOINT_INDEX[a]] - joints[0][:, JOINT_INDEX[b]]
         dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
         cos = np.sum(da * dp, axis=1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
         # Hands close together: their left-right direction is noise (another body's proportions
         # move it freely); judged where they are at least 60 % of their usual distance apart.
+        # A mirror gives a negative cosine; hands 20-25 cm apart turn by up to ~30 degrees.
         gap = np.linalg.norm(dp, axis=1)
         apart = gap > 0.6 * np.median(gap)
         assert apart.sum() > 20 and cos[apart].min() > least, (a, cos[apart].min())
+        assert np.median(cos[apart]) > 0.98, (a, np.median(cos[apart]))
 
 
 def _check_bvh_names(tmp_path: Path) -> None:

@@ -16,11 +16,11 @@ def mirror_joints(j: np.ndarray) -> np.ndarray:
     return (j * FLIP)[..., LEFT_RIGHT_SWAP, :]
 
 
-def clouds(n: int, seed: int = 0) -> np.ndarray:
-    """Person-sized, left/right asymmetric point sets of 256 points in the person frame: a
-    standing column with one arm out."""
+def clouds(n: int, seed: int = 0, points: int = 256) -> np.ndarray:
+    """Person-sized, left/right asymmetric point sets in the person frame: a standing column
+    with one arm out."""
     rng = np.random.default_rng(seed)
-    pts = rng.normal([0.0, 1.0, 0.0], [0.15, 0.45, 0.08], (n, 256, 3))
+    pts = rng.normal([0.0, 1.0, 0.0], [0.15, 0.45, 0.08], (n, points, 3))
     pts[:, :40, 0] += rng.uniform(0.3, 0.6, (n, 1))
     pts[:, :40, 1] = rng.uniform(1.3, 1.5, (n, 40))
     return pts.astype(np.float32)
@@ -51,6 +51,6 @@ def test_shipped_model_wrapped_is_mirror_equivariant(tmp_path):
     model = onnx.load(str(wrapped))
     assert [i.name for i in model.graph.input] == ["points"] and [o.name for o in model.graph.output] == ["joints"]
     g = SkeletonRegressor(wrapped)
-    x = clouds(4, seed=1)
+    x = clouds(4, seed=1, points=SkeletonRegressor(DEFAULT_MODEL).num_points)
     np.testing.assert_allclose(g(x * FLIP), mirror_joints(g(x)), atol=2e-5)
     assert np.abs(g(x) - mirror_joints(g(x))).max() > 1e-2  # the clouds are not symmetric, nor the joints
