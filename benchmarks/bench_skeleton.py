@@ -83,7 +83,7 @@ def timed(fn, items, warmup: int = 10) -> tuple[float, float]:
     return p["p50"], p["p95"]
 
 
-def against(other: Path, frames: list[DepthFrame], clouds: list, threads: int) -> list[tuple[str, float, float]]:
+def against(other: Path, frames: list[DepthFrame], threads: int) -> list[tuple[str, float, float]]:
     """The shipped regressor and ``other`` in turns, frame by frame: model alone (each on a
     cloud sampled by its own finder settings) and whole stage."""
     regs = [SkeletonRegressor(p, threads=threads) for p in (DEFAULT_MODEL, other)]
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> None:
             plain = SkeletonStage(path, threads=args.threads, temporal=False)
             rows.append((f"whole stage: {label}, One Euro only", *timed(plain.estimate, frames)))
     if args.against is not None:
-        rows += against(args.against, frames, clouds, args.threads)
+        rows += against(args.against, frames, args.threads)
     print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
     for name, med, p95 in rows:
         print(f"{name:<40}{med:>10.2f}{p95:>10.2f}")

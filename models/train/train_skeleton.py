@@ -307,6 +307,9 @@ def main(argv: list[str] | None = None) -> dict:
         if args.lr is not None:
             recipe = Recipe(**{**recipe.__dict__, "lr": args.lr})
         if args.num_points is not None:
+            stored = data["train"]["points"].shape[1]
+            if not 0 < args.num_points <= stored:
+                raise SystemExit(f"--num-points {args.num_points}: the samples store {stored} points each")
             recipe = Recipe(**{**recipe.__dict__, "num_points": args.num_points})
         init = args.init if kind == "ours" else None
         model, log = train_model(recipe, data["train"], seed=args.seed, progress=progress, init=init)
