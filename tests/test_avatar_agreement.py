@@ -29,6 +29,7 @@ from live.body.gltf_avatar import read_gltf_humanoid
 from live.core.assets import shared_data_dir
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
 from tests.glb_files import glb_chunks, write_glb
+from tests.mirror_checks import assert_left_right_kept
 
 GODETTE = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
 pytestmark = pytest.mark.skipif(not GODETTE.is_file(), reason="../shared/data/avatars/godette_vrm0.vrm is absent")
@@ -331,18 +332,7 @@ def test_the_avatar_faces_the_camera_and_mirrors_nothing(runs):
     towards = np.sum(facing(performer) * to_camera, 1) > 0.7
     assert towards.sum() > 20
     assert np.sum(facing(avatar)[towards] * to_camera[towards], 1).min() > 0.65
-    for a, b in (("left_hip", "right_hip"), ("left_wrist", "right_wrist")):
-        da = avatar[:, JOINT_INDEX[a]] - avatar[:, JOINT_INDEX[b]]
-        dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
-        c = np.sum(da * dp, 1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
-        # Hands close together leave their left-right direction to a few mm of noise: judged
-        # where the performer's are at least 60 % of their usual distance apart. A mirror gives
-        # a negative cosine; other proportions turn the line between hands 20-25 cm apart by up
-        # to ~30 degrees (cosine 0.88 in one frame of the demo; 0.95 and more elsewhere).
-        gap = np.linalg.norm(dp, axis=1)
-        apart = gap > 0.6 * np.median(gap)
-        assert apart.sum() > 20 and c[apart].min() > 0.8, (a, c[apart].min())
-        assert np.median(c[apart]) > 0.98, (a, np.median(c[apart]))
+    assert_left_right_kept(avatar, performer)
 
 
 # ----------------------------------------------------------------------------- Blender (optional)

@@ -13,6 +13,7 @@ from live.body.gltf_avatar import read_gltf_humanoid
 from live.core.assets import shared_data_dir
 from live.core.skeleton import JOINT_INDEX, JOINT_NAMES
 from tests.glb_files import glb_chunks, write_glb
+from tests.mirror_checks import assert_left_right_kept
 
 GODETTE = shared_data_dir() / "avatars" / "godette_vrm0.vrm"
 needs_godette = pytest.mark.skipif(not GODETTE.is_file(), reason="../shared/data/avatars/godette_vrm0.vrm is absent")
@@ -160,17 +161,7 @@ def test_demo_onto_godette(tmp_path, capsys):
     np.testing.assert_allclose(joints[1], joints[0], atol=1e-3)
     _check_bvh_names(tmp_path)
     performer = np.load(tmp_path / "vrm0" / "skeleton.npz")["joints"]
-    for a, b, least in (("left_hip", "right_hip", 0.99), ("left_wrist", "right_wrist", 0.8)):
-        da = joints[0][:, JOINT_INDEX[a]] - joints[0][:, JOINT_INDEX[b]]
-        dp = performer[:, JOINT_INDEX[a]] - performer[:, JOINT_INDEX[b]]
-        cos = np.sum(da * dp, axis=1) / np.linalg.norm(da, axis=1) / np.linalg.norm(dp, axis=1)
-        # Hands close together: their left-right direction is noise (another body's proportions
-        # move it freely); judged where they are at least 60 % of their usual distance apart.
-        # A mirror gives a negative cosine; hands 20-25 cm apart turn by up to ~30 degrees.
-        gap = np.linalg.norm(dp, axis=1)
-        apart = gap > 0.6 * np.median(gap)
-        assert apart.sum() > 20 and cos[apart].min() > least, (a, cos[apart].min())
-        assert np.median(cos[apart]) > 0.98, (a, np.median(cos[apart]))
+    assert_left_right_kept(joints[0], performer)
 
 
 def _check_bvh_names(tmp_path: Path) -> None:
