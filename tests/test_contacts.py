@@ -207,9 +207,22 @@ def test_eval_contacts_json_has_both_runs(capsys):
     report = json.loads(capsys.readouterr().out)
     assert code == 0
     for key in ("hand_contact_recall", "hand_contact_precision", "penetration_mean_mm", "penetration_max_mm",
-                "mpjpe_mm"):
+                "mpjpe_mm", "wrist_bend_max_deg"):
         assert key in report and key in report["off"]
     assert report["frames"] == 12
+    assert report["off"]["wrist_bend_max_deg"] < 1e-3  # the retargeter carries hands along their forearms
+
+
+def test_wrist_bend_is_the_angle_of_the_wrists_local_rotation():
+    from live.core.rotations import quat_from_axis_angle, quat_identity
+    from live.evaluation.contacts import wrist_scores
+
+    rotations = quat_identity((3, 22))
+    rotations[1, JOINT_INDEX["left_wrist"]] = quat_from_axis_angle(np.array([0.0, 0.0, np.radians(30.0)]))
+    rotations[2, JOINT_INDEX["left_elbow"]] = quat_from_axis_angle(np.array([np.radians(80.0), 0.0, 0.0]))
+    scores = wrist_scores(rotations)
+    assert scores["wrist_bend_max_deg"] == pytest.approx(30.0)
+    assert scores["wrist_bend_mean_deg"] == pytest.approx(30.0 / 6)
 
 
 def test_eval_contacts_refuses_a_missing_motion(capsys):

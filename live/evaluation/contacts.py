@@ -159,6 +159,18 @@ def joint_scores(joints: np.ndarray, gt_joints: np.ndarray) -> dict[str, float]:
             "pa_acc_mm_per_frame2": 1000 * pa_acceleration_error(joints, gt_joints)}
 
 
+def wrist_scores(rotations: np.ndarray) -> dict[str, float]:
+    """How far the avatar's hands bend at the wrist (degrees, the wrists' local rotations of
+    rotations T x 22 x 4), mean and max over frames and hands. A skeleton gives no hand
+    orientation and the retargeters carry hands along their forearms (no bend); the correction
+    turns an arm and keeps its hand's world orientation, so the wrist bends by what the forearm
+    turned (live/retarget/contacts_keep.py): what a viewer sees of it at the hands."""
+    from live.core.rotations import quat_angle
+
+    bend = np.degrees(quat_angle(rotations[:, [JOINT_INDEX["left_wrist"], JOINT_INDEX["right_wrist"]]]))
+    return {"wrist_bend_mean_deg": float(bend.mean()), "wrist_bend_max_deg": float(bend.max())}
+
+
 def run_retargeter(rt, joints: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(root T x 3, rotations T x 22 x 4, joints T x 22 x 3) of source joints through ``rt``."""
     return tuple(np.stack(x) for x in zip(*(rt.step(j) for j in joints)))  # type: ignore[return-value]
@@ -219,6 +231,7 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
         gaps, depth = contact_geometry(tgt_regions, np.asarray(tgt.faces, np.int64), verts, progress)
         scores = contact_scores(src_gaps, gaps, depth)
         scores.update(joint_scores(pred, gt_joints))
+        scores.update(wrist_scores(rot))
         out[name] = scores
         frames[name] = {"gaps": gaps, "depth": depth, "joints": pred}
     result = dict(out["on"])
@@ -236,7 +249,8 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
 _COLUMNS = (("hand_contact_recall", "recall", "{:.1%}"), ("hand_contact_precision", "precision", "{:.1%}"),
             ("penetration_mean_mm", "pen. mean mm", "{:.1f}"), ("penetration_max_mm", "pen. max mm", "{:.1f}"),
             ("penetrating_share", "sinking", "{:.1%}"), ("mpjpe_mm", "MPJPE mm", "{:.1f}"),
-            ("pa_mpjpe_mm", "PA-MPJPE mm", "{:.1f}"), ("acc_mm_per_frame2", "Acc", "{:.2f}"))
+            ("pa_mpjpe_mm", "PA-MPJPE mm", "{:.1f}"), ("acc_mm_per_frame2", "Acc", "{:.2f}"),
+            ("wrist_bend_max_deg", "wrist bend max deg", "{:.0f}"))
 
 
 def _fmt(value, pattern: str) -> str:
@@ -306,8 +320,9 @@ def pooled(rows: list[dict[str, Any]]) -> dict[str, Any]:
                "penetration_max_mm": max(r["penetration_max_mm"] for r in runs),
                "penetrating_share": sinking / float(2 * frames.sum()),
                "source_hand_contacts": src_c, "avatar_hand_contacts": ava_c, "penetrating_pairs": sinking}
-        for key in ("mpjpe_mm", "pa_mpjpe_mm", "acc_mm_per_frame2", "pa_acc_mm_per_frame2"):
+        for key in ("mpjpe_mm", "pa_mpjpe_mm", "acc_mm_per_frame2", "pa_acc_mm_per_frame2", "wrist_bend_mean_deg"):
             out[key] = float(np.average([r[key] for r in runs], weights=frames))
+        out["wrist_bend_max_deg"] = max(r["wrist_bend_max_deg"] for r in runs)
         return out
 
     result = pool(rows)
