@@ -206,3 +206,51 @@ def test_fusion_carries_a_limb_depth_lost_but_still_reports(session):
     e_depth = np.linalg.norm(depth[lost][:, arm] - gt[lost][:, arm], axis=-1).mean()
     e_fused = np.linalg.norm(pred[lost][:, arm] - gt[lost][:, arm], axis=-1).mean()
     assert e_depth > 0.2 and e_fused < 0.06, (e_depth, e_fused)
+
+
+class _Shifted(NoisySkeletonStage):
+    """Depth skeletons moved as a whole by ``shift`` (m) from ``start`` s for ``seconds``."""
+
+    def __init__(self, shift, start, seconds, **kw):
+        super().__init__(occlusion_every_s=0.0, seed=5, **kw)
+        self.shift, self.start, self.seconds = np.asarray(shift, np.float64), start, seconds
+
+    def process(self, result):
+        ok = super().process(result)
+        t = (result.t_ns - 1_000_000_000) / 1e9
+        if ok and self.start <= t < self.start + self.seconds:
+            result.skeleton = SkeletonFrame(result.t_ns, np.asarray(result.skeleton.joints) + self.shift,
+                                            result.skeleton.confidence)
+        return ok
+
+
+def test_a_depth_skeleton_jumping_as_a_whole_is_left_to_the_suit(session):
+    """A performer half out of view is read half a metre too low for two frames: the fusion keeps
+    the suit's root (counted) instead of dropping the body with it."""
+    path, _, meta = session
+    stages = build_stages("fused", depth_stage=_Shifted([0.0, -0.45, 0.1], 5.0, 0.1), stream_meta=meta, height=1.75)
+    rows = []
+    Pipeline([ReplaySource(path)], stages, mode="every",
+             on_result=lambda r: rows.append((r.t_ns, r.skeleton.joints, r.truth.joints))
+             if r.depth is not None and r.skeleton is not None else None).run()
+    t = (np.array([r[0] for r in rows]) - 1_000_000_000) / 1e9
+    err = np.linalg.norm(np.array([r[1] for r in rows]) - np.array([r[2] for r in rows]), axis=-1).mean(1)
+    jumped = (t >= 5.0) & (t < 5.1)
+    assert jumped.any() and err[jumped].max() < 0.1, err[jumped]
+    assert stages[1].fuser.counters["root_jumps"] == int(jumped.sum())
+
+
+def test_depth_that_keeps_saying_the_body_is_elsewhere_places_it_again(session):
+    """Depth puts the whole body 0.6 m to the side for 2 s (the suit's root drifted, say): after
+    root_jump_hold_s the fused body goes where depth says."""
+    path, _, meta = session
+    stages = build_stages("fused", depth_stage=_Shifted([0.6, 0.0, 0.0], 5.0, 2.0), stream_meta=meta, height=1.75)
+    rows = []
+    Pipeline([ReplaySource(path)], stages, mode="every",
+             on_result=lambda r: rows.append((r.t_ns, r.skeleton.joints, r.truth.joints))
+             if r.depth is not None and r.skeleton is not None else None).run()
+    t = (np.array([r[0] for r in rows]) - 1_000_000_000) / 1e9
+    pelvis_x = np.array([r[1][0, 0] - r[2][0, 0] for r in rows])
+    hold = stages[1].fuser.root_jump_hold_s
+    assert np.all(np.abs(pelvis_x[(t >= 5.0) & (t < 5.0 + hold - 0.1)]) < 0.15)
+    assert np.all(np.abs(pelvis_x[(t >= 5.0 + hold + 0.2) & (t < 7.0)] - 0.6) < 0.1)

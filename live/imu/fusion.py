@@ -19,7 +19,10 @@ Per depth frame (``Fuser.update``), with the suit's orientations aligned to the 
    show where the suit puts it (``live.imu.fusion_visibility``: hidden, out of view, covered) is
    left to the suit: the regressor keeps reporting such an arm, with confidence, where it guesses.
 4. Without depth (no person in the frame) the suit poses the skeleton at a root moved by foot
-   odometry from the last fused one.
+   odometry from the last fused one. A depth skeleton whose body as a whole lies more than
+   ``root_jump`` from where the suit moved it since the last frame is not used either (a
+   performer half out of view, read half a metre too low as they leave it), unless it stays
+   there for ``root_jump_hold_s``: then the suit's root had drifted, and depth places it again.
 
 Before the heading is known (the first depth frame) and for bones the suit does not measure,
 the result is the depth skeleton's; as the filters converge, the suit's share grows.
@@ -196,7 +199,9 @@ class Fuser:
     lost and found again (``_lost_limbs``); seen_min / seen_radius: a limb bone of which the depth
     image shows less than this share within this distance (m) where the suit puts it is unseen
     (``_unseen_limbs``: its depth joint pulls nothing and teaches nothing); heading_votes: how many
-    first heading measurements vote on where it starts; filter options: ``heading`` (HeadingFilter) and
+    first heading measurements vote on where it starts; root_jump (m) / root_jump_hold_s: a depth
+    skeleton that far from the suit's prediction as a whole is left out, for up to that long
+    (``_jumped``); filter options: ``heading`` (HeadingFilter) and
     ``sensor`` (SensorFilter) keyword dicts."""
 
     def __init__(self, calibration: Calibration, *, template: np.ndarray | None = None, unsupported: float = 6.0,
@@ -204,7 +209,7 @@ class Fuser:
                  robust: float = 3.0, learn_conf: float = 0.5, gate: float = 2.5, clear_frames: int = 15,
                  correlation: float = 8.0, shape_rate: float = 0.1,
                  interp_window: int = 60, interp_prior: int = 10, seen_min: float = 0.3, seen_radius: float = 0.04,
-                 heading_votes: int = 15,
+                 heading_votes: int = 15, root_jump: float = 0.3, root_jump_hold_s: float = 0.5,
                  heading: dict | None = None, sensor: dict | None = None):
         self.cal = calibration
         self.template = default_template(calibration.rest_joints) if template is None else np.asarray(template, np.float64)
@@ -231,8 +236,10 @@ class Fuser:
         self._last_t: int | None = None
         self.frames = 0
         self.seen_min, self.seen_radius = seen_min, seen_radius
+        self.root_jump, self.root_jump_hold_s = root_jump, root_jump_hold_s
+        self._jump_since: int | None = None  # when depth started to disagree with the suit's root
         self.counters = {"depth_frames": 0, "suit_only_frames": 0, "outliers": 0, "lost_joint_frames": 0,
-                         "unseen_joint_frames": 0, "restarts": 0}
+                         "unseen_joint_frames": 0, "restarts": 0, "root_jumps": 0}
         # The bones the suit measures: (sensor row, its segment joint, the child joint, the bone's
         # index in BONES, the bone's number among its segment's).
         pairs = [(i, int(j), c, c - 1, n) for i, j in enumerate(calibration.joints)
@@ -369,6 +376,26 @@ class Fuser:
         self.counters["lost_joint_frames"] += int(self._lost.sum())
         return self._lost.copy()
 
+    def _jumped(self, x: np.ndarray, var: np.ndarray, prior: np.ndarray, t_ns: int) -> bool:
+        """Whether the depth joints x as a whole (the per-axis median of their offsets from the
+        suit's prediction ``prior``, over the joints depth supports) lie more than root_jump
+        away, for less than root_jump_hold_s so far (counted in ``root_jumps``). Only once a
+        root has been fused and the heading is known: before, the suit's prediction is not
+        placed in the world."""
+        if self._root is None or self.heading.variance is None:
+            return False
+        ok = np.isfinite(var)
+        offset = np.median((x - prior)[ok], axis=0) if ok.any() else np.zeros(3)
+        if float(np.linalg.norm(offset)) <= self.root_jump:
+            self._jump_since = None
+            return False
+        if self._jump_since is None:
+            self._jump_since = t_ns
+        if seconds_between(self._jump_since, t_ns) >= self.root_jump_hold_s:
+            return False  # depth has said so for long enough: the suit's root drifted
+        self.counters["root_jumps"] += 1
+        return True
+
     def update(self, quats: np.ndarray, t_ns: int, depth: SkeletonFrame | None, image: DepthFrame | None = None,
                camera_to_world: np.ndarray | None = None) -> tuple[SuitPose, np.ndarray] | None:
         """quats (S, 4) at t_ns -> (fused pose, confidence (22,)). depth None: the suit alone,
@@ -419,6 +446,8 @@ class Fuser:
             relative = self._shape + (rel - self._rel_prev)
             rel_w = 1.0 / self._shape_var
         self._rel_prev = rel
+        if x is not None and self._jumped(x, var, prior, t_ns):
+            x = None
         if x is None:
             joints = solve_joints(np.zeros((NUM_JOINTS, 3)), np.zeros(NUM_JOINTS), vec, bone_w, prior, 1.0,
                                   relative, rel_w)

@@ -210,6 +210,7 @@ class FusionStage(_SuitStageBase):
             return False
         image, c2w = depth_image_of(result)
         fused = self.fuser.update(quats, result.t_ns, result.skeleton, image, c2w)
+        self.counters.update(self.fuser.counters)  # depth frames, suit-only frames, outliers, root jumps
         if fused is None:
             return False
         pose, conf = fused
