@@ -1,7 +1,7 @@
 """Per-frame cost of the self-contact correction in the retarget stage, beside the stage without it.
 
 Run: .venv/bin/python benchmarks/bench_contacts.py [--frames 600] [--source BODY] [--targets A,B]
-     [--retarget analytic|learned]
+     [--retarget analytic|learned] [--performer true|fitted]
 Timing (median / p95 ms, 10 warm-up frames skipped; wall clock, and the thread's CPU time, which
 a machine busy with other jobs does not inflate), one process, the two configurations run
 frame by frame in turn (so that a busy machine slows both alike), as the pipeline's retarget
@@ -9,7 +9,8 @@ stage runs them: the analytic retargeter (or ``--retarget learned``: the network
 contacts solve the performer's rotations themselves; both with foot lock + floor) from exact
 skeletons, then LBS of
 the avatar (~7k vertices), without and with the self-contacts (the performer's true body as in a
-synthetic session). The motion: clips with self-contacts, back to back at 30 fps (hands on the
+synthetic session; ``--performer fitted``: a template fitted to the skeleton, with the
+estimated performer's wider contact settings, as a live depth or suit performer gets). The motion: clips with self-contacts, back to back at 30 fps (hands on the
 belly, curled in: CMU subject 49; washing: subject 2; a walk whose hands pass the thighs:
 subject 16), about a third of the frames in contact. Goal: the stage with contacts <= 2 ms p95.
 Also: building an avatar's surface (signed distance grids) with the cache cold, once per avatar.
@@ -59,23 +60,27 @@ def main() -> None:
     ap.add_argument("--targets", default="child_girl_6y,tall_heavy_male",
                     help="avatars (default: the slimmest child and the heaviest adult of the library)")
     ap.add_argument("--retarget", default="analytic", choices=("analytic", "learned"))
+    ap.add_argument("--performer", default="true", choices=("true", "fitted"),
+                    help="the performer's surface: its true body, or a template fitted to its skeleton")
     args = ap.parse_args()
     from live.body.library import load_body
     from live.body.skinning import pose_transforms, skin
     from live.evaluation.retarget import make_retargeter
-    from live.retarget.contacts_retargeter import ContactRetargeter
+    from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
+    from live.retarget.contacts_self import ESTIMATED, ContactSettings
     from live.retarget.contacts_surface import body_surface, build_surface_model
 
     src = load_body(args.source)
     joints = _motion_joints(src, args.frames)
-    performer = body_surface(src)
+    performer = body_surface(src) if args.performer == "true" else PerformerSurfaces()
     print(f"{len(joints)} frames from {src.name}; ms median / p95 (stage: {args.retarget} retarget step + LBS)")
     for name in args.targets.split(","):
         tgt = load_body(name)
         target = body_surface(tgt)
         plain = make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0)
         kept = ContactRetargeter(make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0), target,
-                                 tgt.rest_joints, src.rest_joints, performer)
+                                 tgt.rest_joints, src.rest_joints, performer,
+                                 settings=ContactSettings() if args.performer == "true" else ESTIMATED)
         times: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
         cpu: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
         for j in joints:

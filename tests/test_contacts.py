@@ -484,3 +484,41 @@ def test_a_hand_on_the_other_forearm_by_its_wrist_reads_as_near():
     row = (gaps.probe == hand) & (gaps.region == REGIONS.index("right_arm"))
     assert exact < 0.005
     assert row.any() and gaps.gap[row].min() < 0.015
+
+
+def test_a_contact_of_an_estimated_performer_is_kept_touching():
+    """With ``touch`` (ESTIMATED: a performer known by an estimated skeleton on a fitted
+    template) a held contact's bounds are the margin, whatever gap the estimate measured; by
+    default they are the performer's gap."""
+    from live.retarget.contacts_keep import ContactKeeper
+    from live.retarget.contacts_self import ESTIMATED, SourceContacts
+    from live.retarget.contacts_surface import Gaps
+
+    hand, torso = [p.name for p in PROBES].index("left_hand"), REGIONS.index("torso")
+    gap = np.full((len(PROBES), len(REGIONS)), 1.0)
+    weight = np.zeros_like(gap)
+    gap[hand, torso], weight[hand, torso] = 0.022, 1.0
+    source = SourceContacts(gap=gap, contact=weight > 0, weight=weight)
+    row = Gaps(np.array([hand]), np.array([torso]), np.array([0.05]), np.array([[0.0, 0.0, 1.0]]), np.zeros((1, 3)))
+    offsets = np.zeros((22, 3))
+    lower, upper, _ = ContactKeeper(offsets, ESTIMATED).bounds(row, source)
+    assert lower[0] == upper[0] == ESTIMATED.margin
+    lower, upper, _ = ContactKeeper(offsets).bounds(row, source)
+    assert lower[0] == upper[0] == pytest.approx(0.022)
+    assert ESTIMATED.on > ContactSettings().on and ESTIMATED.off > ContactSettings().off
+
+
+def test_the_stage_reads_the_depth_stages_skeleton_as_an_estimate():
+    """Behind the depth stage the performer's contacts are read with ESTIMATED; from the truth
+    (or, set by ``replay --only imu|fused``, a suit's skeleton) with the exact settings."""
+    from live.pipeline.stages import RetargetStage
+    from live.retarget.contacts_self import ESTIMATED
+
+    avatar = load_body("child_girl_6y")
+    rest = np.asarray(load_body("adult_male_average").rest_joints, np.float64)
+    depth = RetargetStage(avatar)
+    truth = RetargetStage(avatar, use_truth=True)
+    suit = RetargetStage(avatar, estimated=False)
+    assert depth._make(rest).settings == ESTIMATED
+    assert truth._make(rest).settings == ContactSettings()
+    assert suit._make(rest).settings == ContactSettings()

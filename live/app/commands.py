@@ -118,6 +118,9 @@ def _capture_mode_stages(mode: str, source, stages: list, args) -> list:
     capture = build_stages(mode, calibration=args.calibration, depth_stage=depth_stage,
                            stream_meta=suit[0].meta if suit else None)
     rest = [s for s in stages if getattr(s, "name", "") not in ("skeleton", "cloud")]
+    for stage in rest:
+        if getattr(stage, "name", "") == "retarget":
+            stage.estimated = False  # the suit's or the fused skeleton, not the depth stage's estimate
     return capture + rest
 
 

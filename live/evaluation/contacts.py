@@ -196,7 +196,7 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     from live.motion.rig_mapping import load_motion
     from live.retarget.analytic import local_rotations_from_joints
     from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
-    from live.retarget.contacts_self import ContactSettings
+    from live.retarget.contacts_self import ESTIMATED, ContactSettings
     from live.retarget.contacts_surface import body_surface
 
     check_options(from_, retarget)
@@ -207,7 +207,6 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     tgt = target_body if hasattr(target_body, "rest_joints") else load_body(target_body)
     if len(tgt.faces) == 0 or len(src.faces) == 0:
         raise UserInputError("contacts are measured on meshes: both bodies need faces")
-    settings = settings or ContactSettings()
     if skeletons is None:
         skeletons = source_skeletons(motion, src, from_, camera=camera, seed=seed, lag=lag) \
             if from_ == "depth" else source_skeletons(motion, src, from_)
@@ -215,6 +214,8 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
     src_root, src_true = _on_body(motion, src.rest_joints)
     performer = body_surface(src) if from_ == "skeleton" else PerformerSurfaces()
+    if settings is None:  # a skeleton from depth is an estimate: its contacts are read as the stage reads them
+        settings = ESTIMATED if from_ == "depth" else ContactSettings()
     runs = {"off": run_retargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), joints)}
     keeper = ContactRetargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), body_surface(tgt),
                                tgt.rest_joints, src_rest, performer, fps=fps, settings=settings)

@@ -42,14 +42,17 @@ class RetargetStage:
     performer's self-contacts on the avatar and its hands and forearms out of its body
     (live/retarget/contacts_retargeter.py). The performer's body surface is the one given by
     ``set_performer_body`` (a synthetic session's true body) or a template fitted to the
-    estimated skeleton.
+    estimated skeleton. estimated: the skeletons are the depth stage's (centimetres off): the
+    performer's contacts are read with live.retarget.contacts_self.ESTIMATED (wider gaps, kept
+    touching); False for a fused or suit skeleton (``replay --only imu|fused``) and with
+    ``use_truth``.
     """
 
     name = "retarget"
 
     def __init__(self, avatar, *, kind: str = "analytic", foot_lock: bool = True, hand_ik: bool = False,
                  skin: bool = False, warmup: int = 30, use_truth: bool = False, model_path=None,
-                 contacts: str = "auto"):
+                 contacts: str = "auto", estimated: bool = True):
         from live.core.errors import UserInputError
 
         if kind not in ("analytic", "learned"):
@@ -63,6 +66,7 @@ class RetargetStage:
         self.skin = skin and len(getattr(avatar, "faces", ())) > 0
         self.warmup = warmup
         self.use_truth = use_truth
+        self.estimated = estimated
         self.model_path = model_path
         # Load now what the performer's first frame would otherwise wait for (~130 ms: the body
         # library's mean T-pose that estimate_rest_joints takes its bone directions from).
@@ -133,9 +137,11 @@ class RetargetStage:
         if self._contacts is None:
             return inner
         from live.retarget.contacts_retargeter import ContactRetargeter
+        from live.retarget.contacts_self import ESTIMATED, ContactSettings
 
         target, performer = self._contacts
-        return ContactRetargeter(inner, target, self.avatar.rest_joints, rest, performer)
+        settings = ESTIMATED if self.estimated and not self.use_truth else ContactSettings()
+        return ContactRetargeter(inner, target, self.avatar.rest_joints, rest, performer, settings=settings)
 
     def _source_frame(self, result: FrameResult) -> SkeletonFrame | None:
         """The performer's skeleton to retarget: the frame's (with ``use_truth`` its ground-truth

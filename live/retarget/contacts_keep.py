@@ -194,7 +194,7 @@ class ContactKeeper:
         w = source.weight[gaps.probe, gaps.region] * self._contact_weight[gaps.probe]
         busy = (source.weight * self._contact_weight[:, None]).max(1)[gaps.probe]
         cap = self._floor_cap[gaps.probe] * (1.0 - busy) + s.margin * busy
-        goal = np.maximum(src_gap, s.margin)
+        goal = np.full_like(src_gap, s.margin) if s.touch else np.maximum(src_gap, s.margin)
         floor = np.clip(src_gap, s.margin, np.maximum(cap, s.margin))
         return w * goal + (1.0 - w) * floor, np.where(w > 0.0, goal, FAR_GOAL), w
 

@@ -67,6 +67,7 @@ class ContactRetargeter:
     def __init__(self, inner: Retargeter, target: BodySurface, target_rest: np.ndarray, source_rest: np.ndarray,
                  performer: BodySurface | PerformerSurfaces, *, fps: float = 30.0,
                  settings: ContactSettings = ContactSettings()):
+        self.settings = settings
         self.inner = inner
         self.target = target
         self.performer = performer
