@@ -67,7 +67,7 @@ def main() -> None:
     from live.body.skinning import pose_transforms, skin
     from live.evaluation.retarget import make_retargeter
     from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
-    from live.retarget.contacts_self import ESTIMATED, ContactSettings
+    from live.retarget.contacts_self import settings_for
     from live.retarget.contacts_surface import body_surface, build_surface_model
 
     src = load_body(args.source)
@@ -80,7 +80,7 @@ def main() -> None:
         plain = make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0)
         kept = ContactRetargeter(make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0), target,
                                  tgt.rest_joints, src.rest_joints, performer,
-                                 settings=ContactSettings() if args.performer == "true" else ESTIMATED)
+                                 settings=settings_for(args.performer == "fitted"))
         times: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
         cpu: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
         for j in joints:

@@ -39,12 +39,19 @@ def session(tmp_path_factory, shared_bvh):
     return path, scene, meta
 
 
-def _run(path, stages):
+def _run_timed(path, stages):
+    """(seconds from the take's start (F,), skeletons (F, 22, 3), truth (F, 22, 3)) of the depth
+    frames with a skeleton."""
     rows = []
     Pipeline([ReplaySource(path)], stages, mode="every",
              on_result=lambda r: rows.append((r.skeleton.joints, r.truth.joints, r.t_ns))
              if r.depth is not None and r.skeleton is not None else None).run()
-    return np.array([a for a, _, _ in rows], np.float64), np.array([b for _, b, _ in rows], np.float64)
+    t = (np.array([c for _, _, c in rows], np.float64) - 1e9) / 1e9
+    return t, np.array([a for a, _, _ in rows], np.float64), np.array([b for _, b, _ in rows], np.float64)
+
+
+def _run(path, stages):
+    return _run_timed(path, stages)[1:]
 
 
 @pytest.fixture(scope="module")
@@ -229,12 +236,8 @@ def test_a_depth_skeleton_jumping_as_a_whole_is_left_to_the_suit(session):
     the suit's root (counted) instead of dropping the body with it."""
     path, _, meta = session
     stages = build_stages("fused", depth_stage=_Shifted([0.0, -0.45, 0.1], 5.0, 0.1), stream_meta=meta, height=1.75)
-    rows = []
-    Pipeline([ReplaySource(path)], stages, mode="every",
-             on_result=lambda r: rows.append((r.t_ns, r.skeleton.joints, r.truth.joints))
-             if r.depth is not None and r.skeleton is not None else None).run()
-    t = (np.array([r[0] for r in rows]) - 1_000_000_000) / 1e9
-    err = np.linalg.norm(np.array([r[1] for r in rows]) - np.array([r[2] for r in rows]), axis=-1).mean(1)
+    t, pred, gt = _run_timed(path, stages)
+    err = np.linalg.norm(pred - gt, axis=-1).mean(1)
     jumped = (t >= 5.0) & (t < 5.1)
     assert jumped.any() and err[jumped].max() < 0.1, err[jumped]
     assert stages[1].fuser.counters["root_jumps"] == int(jumped.sum())
@@ -245,12 +248,8 @@ def test_depth_that_keeps_saying_the_body_is_elsewhere_places_it_again(session):
     root_jump_hold_s the fused body goes where depth says."""
     path, _, meta = session
     stages = build_stages("fused", depth_stage=_Shifted([0.6, 0.0, 0.0], 5.0, 2.0), stream_meta=meta, height=1.75)
-    rows = []
-    Pipeline([ReplaySource(path)], stages, mode="every",
-             on_result=lambda r: rows.append((r.t_ns, r.skeleton.joints, r.truth.joints))
-             if r.depth is not None and r.skeleton is not None else None).run()
-    t = (np.array([r[0] for r in rows]) - 1_000_000_000) / 1e9
-    pelvis_x = np.array([r[1][0, 0] - r[2][0, 0] for r in rows])
+    t, pred, gt = _run_timed(path, stages)
+    pelvis_x = pred[:, 0, 0] - gt[:, 0, 0]
     hold = stages[1].fuser.root_jump_hold_s
     assert np.all(np.abs(pelvis_x[(t >= 5.0) & (t < 5.0 + hold - 0.1)]) < 0.15)
     assert np.all(np.abs(pelvis_x[(t >= 5.0 + hold + 0.2) & (t < 7.0)] - 0.6) < 0.1)

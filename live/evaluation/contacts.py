@@ -196,7 +196,7 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     from live.motion.rig_mapping import load_motion
     from live.retarget.analytic import local_rotations_from_joints
     from live.retarget.contacts_retargeter import ContactRetargeter, PerformerSurfaces
-    from live.retarget.contacts_self import ESTIMATED, ContactSettings
+    from live.retarget.contacts_self import settings_for
     from live.retarget.contacts_surface import body_surface
 
     check_options(from_, retarget)
@@ -214,8 +214,8 @@ def evaluate_contacts(motion, source_body, target_body, from_: str = "skeleton",
     gt_root, gt_joints = _on_body(motion, tgt.rest_joints)
     src_root, src_true = _on_body(motion, src.rest_joints)
     performer = body_surface(src) if from_ == "skeleton" else PerformerSurfaces()
-    if settings is None:  # a skeleton from depth is an estimate: its contacts are read as the stage reads them
-        settings = ESTIMATED if from_ == "depth" else ContactSettings()
+    if settings is None:  # as the retarget stage reads a skeleton of this source
+        settings = settings_for(from_ == "depth")
     runs = {"off": run_retargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), joints)}
     keeper = ContactRetargeter(make_retargeter(retarget, src_rest, tgt.rest_joints, fps), body_surface(tgt),
                                tgt.rest_joints, src_rest, performer, fps=fps, settings=settings)

@@ -137,11 +137,11 @@ class RetargetStage:
         if self._contacts is None:
             return inner
         from live.retarget.contacts_retargeter import ContactRetargeter
-        from live.retarget.contacts_self import ESTIMATED, ContactSettings
+        from live.retarget.contacts_self import settings_for
 
         target, performer = self._contacts
-        settings = ESTIMATED if self.estimated and not self.use_truth else ContactSettings()
-        return ContactRetargeter(inner, target, self.avatar.rest_joints, rest, performer, settings=settings)
+        return ContactRetargeter(inner, target, self.avatar.rest_joints, rest, performer,
+                                 settings=settings_for(self.estimated and not self.use_truth))
 
     def _source_frame(self, result: FrameResult) -> SkeletonFrame | None:
         """The performer's skeleton to retarget: the frame's (with ``use_truth`` its ground-truth

@@ -53,6 +53,12 @@ class ContactSettings:
 ESTIMATED = ContactSettings(on=0.04, off=0.055, reach=0.06, touch=True)
 
 
+def settings_for(from_depth: bool) -> ContactSettings:
+    """The contact settings for a performer's skeleton: ESTIMATED behind the depth stage, the
+    exact ones otherwise (the truth, a BVH take, the suit, the fusion)."""
+    return ESTIMATED if from_depth else ContactSettings()
+
+
 @dataclass
 class SourceContacts:
     """One frame of the performer's contacts, indexed [probe set, region] (PROBES x REGIONS):
