@@ -6,8 +6,10 @@ The sets are train_skeleton's (seeds 1, 2 and 3 beside training's 0; cached unde
 .cache/skeleton_data): "val" (OAK-D 1.5-4 m, the default sensor model), "val_upper" (close-ups)
 and "val_real" (the same unseen clips and bodies as users' sensors see people: five sensors,
 clothes, occluders, any camera height and pitch, 40 % without extrinsics; sim.sensor_realism).
-Without --models: the shipped regressor and the one of git's previous commit of it, if any.
-Prints markdown tables (MPJPE / PA-MPJPE mm, PCK@10cm) for docs/results.md.
+Prints markdown tables (MPJPE / PA-MPJPE mm, PCK@10cm) for docs/results.md: in the person frame,
+and after root alignment (the pelvis moved onto the truth's, as real labelled benchmarks score),
+per sensor and body, and on val_real per view condition (posture, extrinsics hidden, something in
+front, a person behind, clothes, close-up, camera pitch and distance: ``sim.skeleton_data.VIEW_KEYS``).
 """
 
 from __future__ import annotations
@@ -24,9 +26,42 @@ from live.core.metrics import mpjpe, pa_mpjpe, pck
 SPLITS = (("val", 1), ("val_upper", 2), ("val_real", 3))
 
 
-def scores(pred: np.ndarray, gt: np.ndarray) -> dict:
+#: val_real's view-condition groups: (name, key of the data, bins or None for its own values).
+CONDITIONS = (("posture", "posture", None), ("extrinsics hidden", "hidden_extrinsics", None),
+              ("occluder", "occluder", None), ("bystander", "bystander", None), ("dressed", "dressed", None),
+              ("close-up", "closeup", None), ("pitch deg", "pitch_deg", (-90, -25, -5, 5, 15, 90)),
+              ("distance m", "distance", (0.0, 2.0, 3.0, 4.0, 9.0)))
+
+
+def scores(pred: np.ndarray, gt: np.ndarray, root_shift: np.ndarray) -> dict:
+    """MPJPE / PA-MPJPE / PCK@10cm of pred (T, J, 3) against gt, and the same two after root
+    alignment: pred + root_shift ((T, 1, 3): the truth's pelvis less the predicted one), as real
+    labelled benchmarks score."""
+    aligned = pred + root_shift
     return {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
-            "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 3)}
+            "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 3),
+            "root_aligned_mpjpe_mm": round(1000 * mpjpe(aligned, gt), 1),
+            "root_aligned_pck_10cm": round(pck(aligned, gt, 0.1), 3)}
+
+
+def groups(d: dict, split: str) -> list[tuple[str, np.ndarray]]:
+    """(group name, sample mask) of a split's data: every sensor and body; on val_real also
+    each view condition (CONDITIONS), for data that carries them."""
+    out = []
+    for key in ("camera", "body"):
+        out += [(f"{key}:{v}", d[key] == v) for v in np.unique(d[key])]
+    if split != "val_real":
+        return out
+    for name, key, bins in CONDITIONS:
+        if key not in d:
+            continue
+        if bins is None:
+            out += [(f"{name}:{v}", d[key] == v) for v in np.unique(d[key])]
+        else:
+            x = d[key]
+            out += [(f"{name}:{lo:g}..{hi:g}", (x >= lo) & (x < hi)) for lo, hi in zip(bins[:-1], bins[1:])
+                    if ((x >= lo) & (x < hi)).any()]
+    return out
 
 
 def predict(model: Path, points: np.ndarray) -> np.ndarray:
@@ -52,11 +87,10 @@ def compare(models: list[Path], n_val: int, workers: int = 2) -> dict:
                          edge_jump_share=SkeletonRegressor(model).edge_jump_share)
             gt = d["joints"].astype(np.float64)
             pred = predict(model, d["points"])
-            row = {"all": scores(pred[:, joints], gt[:, joints])}
-            for key in ("camera", "body"):
-                for name in np.unique(d[key]):
-                    m = d[key] == name
-                    row[f"{key}:{name}"] = scores(pred[m][:, joints], gt[m][:, joints])
+            shift = gt[:, :1] - pred[:, :1]
+            row = {"all": scores(pred[:, joints], gt[:, joints], shift)}
+            for name, m in groups(d, split):
+                row[name] = scores(pred[m][:, joints], gt[m][:, joints], shift[m])
             out.setdefault(split, {})[model.name if model.name not in out.get(split, {}) else str(model)] = row
     return out
 
@@ -66,12 +100,14 @@ def markdown(results: dict) -> str:
     for split, by_model in results.items():
         names = list(by_model)
         groups = list(next(iter(by_model.values())))
-        lines.append(f"\n**{split}** (MPJPE / PA-MPJPE mm, PCK@10cm{'; upper body' if split == 'val_upper' else ''})\n")
+        lines.append(f"\n**{split}** (MPJPE / PA-MPJPE mm, PCK@10cm; root-aligned MPJPE mm / PCK@10cm"
+                     f"{'; upper body' if split == 'val_upper' else ''})\n")
         lines.append("| group | frames | " + " | ".join(names) + " |")
         lines.append("|---|---|" + "---|" * len(names))
         for g in groups:
-            cells = [f"{by_model[m][g]['mpjpe_mm']} / {by_model[m][g]['pa_mpjpe_mm']} / {by_model[m][g]['pck_10cm']:.3f}"
-                     for m in names]
+            cells = [f"{r['mpjpe_mm']} / {r['pa_mpjpe_mm']} / {r['pck_10cm']:.3f}; "
+                     f"{r['root_aligned_mpjpe_mm']} / {r['root_aligned_pck_10cm']:.3f}"
+                     for r in (by_model[m][g] for m in names)]
             lines.append(f"| {g} | {by_model[names[0]][g]['frames']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

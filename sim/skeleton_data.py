@@ -4,7 +4,7 @@ One sample = what the runtime sees and what it should answer: the person-frame p
 (N x 3 float32) that ``models.skeleton.preprocess.PersonFinder`` extracts from a rendered, noisy
 depth frame, and the true joints in that same person frame (22 x 3, i.e. inverse(to_world)
 applied to the world ground truth), plus metadata (clip, subject, body, camera, distance,
-visible-joint mask).
+visible-joint mask, and the view's conditions: ``VIEW_KEYS``).
 
 Scenes: a real CMU clip (../shared/data/bvh) posed on a body of the body library, seen by a
 virtual depth camera (mostly the OAK-D preset) from a random placement around the performer
@@ -52,6 +52,10 @@ CAMERAS = ("oak-d", "oak-d-pro", "kinect-v1")
 REALISM_CAMERAS = {"oak-d": 0.35, "oak-d-pro": 0.1, "kinect-v1": 0.15, "xtion": 0.2, "kinect-v2": 0.2}
 STORED_POINTS = 512  # points kept per sample; training draws its N from these
 FRAMES_PER_JOB = 8
+#: Per-sample conditions of the view, so that errors can be reported per condition: posture,
+#: extrinsics hidden, camera pitch (degrees, + up) and height (m), something between camera and
+#: performer (desk edge, chair back), another person behind, clothes on the body.
+VIEW_KEYS = ("posture", "hidden_extrinsics", "pitch_deg", "camera_height_m", "occluder", "bystander", "dressed")
 
 
 @dataclass(frozen=True)
@@ -302,6 +306,7 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
         out["distance"].append(float(np.hypot(*(c2w[[0, 2], 3] - joints[i, 0, [0, 2]]))))
         out["count"].append(person.count)
     n = len(out["points"])
+    view = view_conditions(c2w, posture, extras)
     arrays = {
         "points": np.asarray(out["points"], np.float32).reshape(n, STORED_POINTS, 3),
         "joints": np.asarray(out["joints"], np.float32).reshape(n, NUM_JOINTS, 3),
@@ -311,13 +316,27 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
         "count": np.asarray(out["count"], np.int32),
         "attempted": np.array([len(frames)], np.int32),
     }
+    arrays.update({k: np.repeat(np.asarray(v)[None], n) for k, v in view.items()})
     return arrays
+
+
+def view_conditions(camera_to_world: np.ndarray, posture: str, extras) -> dict:
+    """One job's VIEW_KEYS (scalars): the camera's pitch and height from its camera_to_world
+    (camera +z forward), the rest from the realism extras (None: a plain scene)."""
+    c2w = np.asarray(camera_to_world, np.float64)
+    pitch = float(np.degrees(np.arcsin(np.clip(c2w[1, 2], -1.0, 1.0))))
+    seat = posture == "seated"
+    n_boxes = 0 if extras is None else len(extras.boxes) - (2 if seat else 0)
+    return {"posture": posture, "hidden_extrinsics": bool(extras is not None and extras.hide_extrinsics),
+            "pitch_deg": np.float32(pitch), "camera_height_m": np.float32(c2w[1, 3]),
+            "occluder": n_boxes > 0, "bystander": bool(extras is not None and extras.bystander is not None),
+            "dressed": bool(extras is not None and extras.outfit is not None)}
 
 
 # ---------------------------------------------------------------------------- the dataset
 def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
                 realism: bool = False, edge_jump_share: float | None = None) -> Path:
-    fields = {"split": split, "n": n_samples, "seed": seed, "v": 4, "val_subjects": sorted(VAL_SUBJECTS)}
+    fields = {"split": split, "n": n_samples, "seed": seed, "v": 5, "val_subjects": sorted(VAL_SUBJECTS)}
     if edge_jump_share is not None:
         fields.update(edge_jump_share=edge_jump_share)
     if realism or split == "val_real":
@@ -338,7 +357,7 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
     visible (S,22) bool, clip / body / camera (S,) str, subject (S,) int32 (-1 = none),
     closeup (S,) bool, frame (S,) int32, distance (S,) float32 (camera to pelvis, horizontal),
-    count (S,) int32 (person points found); S <= n_samples (frames where the finder failed are
+    count (S,) int32 (person points found), the view's conditions (VIEW_KEYS, (S,) each); S <= n_samples (frames where the finder failed are
     dropped; ``failed`` counts them). anny > 0: training jobs take one of ``anny`` on-demand Anny
     phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``.
     realism: training jobs as users' sensors see people (module doc; "val_real" always).
@@ -436,5 +455,6 @@ def describe(data: dict[str, np.ndarray]) -> dict:
 
 __all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
            "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view",
-           "generate", "mirror", "describe", "grounded_joints", "visible_joints", "VAL_SUBJECTS",
+           "generate", "mirror", "describe", "grounded_joints", "visible_joints", "view_conditions", "VAL_SUBJECTS",
+           "VIEW_KEYS",
            "SPLITS", "CAMERAS", "STORED_POINTS"]

@@ -90,6 +90,13 @@ def test_realism_jobs_use_every_sensor_and_give_samples(monkeypatch):
     centre = np.median(pts[:, :, [0, 2]], axis=1)
     assert np.linalg.norm(joints[:, 0, [0, 2]] - centre, axis=1).max() < 0.3
     assert (joints[:, JOINT_INDEX["head"], 1] > joints[:, 0, 1] + 0.3).all()
+    # Every sample carries its view's conditions, for errors reported per condition.
+    from sim.skeleton_data import VIEW_KEYS
+
+    assert all(len(out[k]) == len(out["frame"]) for k in VIEW_KEYS)
+    assert out["hidden_extrinsics"].all()
+    # pitch: + looking up (sensor_realism draws 20 degrees up to 45 down)
+    assert -45.5 <= float(out["pitch_deg"][0]) <= 20.5 and 0.5 <= float(out["camera_height_m"][0]) <= 2.5
 
 
 def test_realism_sequences_keep_each_frames_truth_in_the_finders_world(monkeypatch):

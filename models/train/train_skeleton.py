@@ -45,6 +45,7 @@ class Recipe:
     schedule: str
     max_steps: int | None = None  # cap on optimiser steps (the CPU budget), None = all epochs
     net: dict = field(default_factory=dict)  # constructor options of the network
+    augment: dict = field(default_factory=dict)  # models.train.point_augment.Augment fields; {} = none
 
 
 RECIPES = {
@@ -61,8 +62,12 @@ RECIPES = {
 
 def _batches(data: dict, recipe: Recipe, rng: np.random.Generator):
     """Shuffled training batches: a random subset of the stored points per sample and a random
-    mirror (x -> -x, left/right swapped) per sample. Yields (points B x N x 3, joints B x 22 x 3)."""
+    mirror (x -> -x, left/right swapped) per sample, then the recipe's augmentation
+    (models.train.point_augment), if any. Yields (points B x N x 3, joints B x 22 x 3)."""
+    from models.train.point_augment import Augment, augment_batch
     from sim.skeleton_data import mirror
+
+    aug = Augment(**{k: tuple(v) if isinstance(v, list) else v for k, v in recipe.augment.items()})
 
     pts_all, jts_all = data["points"], data["joints"]
     order = rng.permutation(len(pts_all))
@@ -74,6 +79,8 @@ def _batches(data: dict, recipe: Recipe, rng: np.random.Generator):
         jts = jts_all[idx].copy()
         m = rng.random(len(idx)) < 0.5
         pts[m], jts[m] = mirror(pts[m], jts[m])
+        if aug.active:
+            pts, jts = augment_batch(pts, jts, rng, aug)
         yield torch.from_numpy(pts), torch.from_numpy(jts)
 
 
@@ -229,6 +236,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                    help="points the network reads per cloud (default 256; at most the 512 stored per sample)")
     p.add_argument("--net", type=json.loads, default=None, metavar="JSON",
                    help='override the network options of "ours", e.g. \'{"refine_k": 0}\' (ablations)')
+    p.add_argument("--augment", type=json.loads, default=None, metavar="JSON",
+                   help='per-sample augmentation (models.train.point_augment.Augment), e.g. '
+                        '\'{"tilt_deg": 3, "jitter_mm": 6, "hole_share": 0.3}\'')
     p.add_argument("--anny", type=int, default=None, metavar="N",
                    help="on-demand Anny phenotypes among the training bodies (default 64; 0 with --quick)")
     p.add_argument("--anny-share", type=float, default=0.3,
@@ -304,6 +314,14 @@ def main(argv: list[str] | None = None) -> dict:
                                "max_steps": 4 if args.quick else recipe.max_steps})
         if args.net is not None and kind == "ours":
             recipe = Recipe(**{**recipe.__dict__, "net": args.net})
+        if args.augment is not None:
+            from models.train.point_augment import Augment
+
+            try:  # unknown keys are a one-line error here, not mid-training
+                Augment(**args.augment)
+            except TypeError as e:
+                raise SystemExit(f"--augment: {e}") from None
+            recipe = Recipe(**{**recipe.__dict__, "augment": args.augment})
         if args.lr is not None:
             recipe = Recipe(**{**recipe.__dict__, "lr": args.lr})
         if args.num_points is not None:

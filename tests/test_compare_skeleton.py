@@ -1,0 +1,33 @@
+"""research.compare_skeleton's scores and groups (the held-out tables of docs/results.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from research.compare_skeleton import groups, markdown, scores
+
+
+def test_root_alignment_removes_a_shift_of_the_whole_skeleton():
+    rng = np.random.default_rng(0)
+    gt = rng.normal(0, 0.3, (10, 22, 3))
+    pred = gt + np.array([0.2, 0.0, 0.0])  # every joint 20 cm off: the root was placed wrong
+    s = scores(pred, gt, gt[:, :1] - pred[:, :1])
+    assert abs(s["mpjpe_mm"] - 200.0) < 0.1 and s["pck_10cm"] == 0.0
+    assert s["root_aligned_mpjpe_mm"] == 0.0 and s["root_aligned_pck_10cm"] == 1.0
+    assert s["pa_mpjpe_mm"] < 1e-6 + 0.1
+
+
+def test_val_real_groups_by_view_condition():
+    n = 6
+    d = {"camera": np.array(["xtion", "oak-d"] * 3), "body": np.array(["a"] * n),
+         "posture": np.array(["clip", "seated", "clip", "clip", "crouching", "clip"]),
+         "hidden_extrinsics": np.array([True, False] * 3), "closeup": np.zeros(n, bool),
+         "pitch_deg": np.array([-30.0, -10, 0, 10, 20, 0]), "distance": np.array([1.5, 2.5, 3.5, 4.5, 2.2, 2.8])}
+    g = dict(groups(d, "val_real"))
+    assert g["posture:seated"].sum() == 1 and g["extrinsics hidden:True"].sum() == 3
+    assert g["pitch deg:-5..5"].sum() == 2 and g["distance m:2..3"].sum() == 3
+    assert "occluder:True" not in g  # data without that key: no group
+    assert set(dict(groups(d, "val"))) == {"camera:oak-d", "camera:xtion", "body:a"}
+    table = markdown({"val_real": {"m.onnx": {k: scores(np.zeros((1, 22, 3)), np.zeros((1, 22, 3)), np.zeros((1, 1, 3)))
+                                              for k in ("all", *g)}}})
+    assert "posture:seated" in table and "root-aligned" in table
