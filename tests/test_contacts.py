@@ -522,3 +522,55 @@ def test_the_stage_reads_the_depth_stages_skeleton_as_an_estimate():
     assert depth._make(rest).settings == ESTIMATED
     assert truth._make(rest).settings == ContactSettings()
     assert suit._make(rest).settings == ContactSettings()
+
+
+def test_a_strike_into_the_belly_is_pushed_out_on_the_frame_it_lands():
+    """The left arm swings from beside the body to 9 cm inside the heavy belly in one frame (a
+    strike): the damped steps alone leave it 2 cm inside; the push-out after them takes it out to
+    within PUSH_DEPTH on that frame, and on the next, the arm still there, it stays out."""
+    from live.core.kinematics import local_matrices
+    from live.retarget import contacts_keep
+    from live.retarget.contacts_keep import _ARM_PROBES, ARMS, PUSH_DEPTH, ContactKeeper, _Posed
+    from live.retarget.contacts_self import SourceContacts
+
+    def hanging(pose):  # arms down beside the body, clear of it
+        j = JOINT_INDEX
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
+            pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
+
+    surface, info, glob, pos = _heavy_avatar_posed(hanging)
+    nothing = np.zeros((len(PROBES), len(REGIONS)))
+    source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
+
+    def swung(state):  # the retargeter's own pose with the left arm turned by state
+        g, p = glob.copy(), pos.copy()
+        ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
+        return g, p
+
+    def depth_of_left(g, p):
+        gaps = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
+        return -gaps.gap.min() if len(gaps.gap) else 0.0
+
+    strike = next(sw for sw in (swung(np.array([[0.0, 0.0, -a, 0.0], [0.0] * 4])) for a in np.linspace(0.2, 1.4, 25))
+                  if depth_of_left(*sw) > 0.09)
+
+    def run(frames):
+        keeper = ContactKeeper(info.offsets)
+        keeper(surface, glob.copy(), local_matrices(glob), pos.copy(), source, 1 / 30)  # clear: nothing near
+        depths = []
+        for _ in range(frames):
+            g, p = strike[0].copy(), strike[1].copy()
+            keeper(surface, g, local_matrices(strike[0]), p, source, 1 / 30)
+            depths.append(depth_of_left(g, p))
+        return depths
+
+    with_push = run(2)
+    assert max(with_push) < PUSH_DEPTH + 0.002
+    original = contacts_keep.PUSH_STEPS
+    contacts_keep.PUSH_STEPS = 0
+    try:
+        without = run(1)
+    finally:
+        contacts_keep.PUSH_STEPS = original
+    assert without[0] > 0.01
