@@ -329,6 +329,22 @@ def _heavy_avatar_posed(place_arms):
     return body_surface(body), info, glob, pos
 
 
+def _heavy_avatar_arms_hanging():
+    """The heavy avatar with its arms down beside the body, clear of it, and a performer touching
+    nothing: (surface, info, glob, pos, source contacts)."""
+    from live.retarget.contacts_self import SourceContacts
+
+    def hanging(pose):
+        j = JOINT_INDEX
+        for side, sign in (("left", 1.0), ("right", -1.0)):
+            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
+            pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
+
+    surface, info, glob, pos = _heavy_avatar_posed(hanging)
+    nothing = np.zeros((len(PROBES), len(REGIONS)))
+    return surface, info, glob, pos, SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
+
+
 def test_a_hand_holding_the_other_forearm_takes_it_along_out_of_the_body():
     """Both arms are one system: the left hand holds the right forearm, both sunk into the heavy
     avatar's belly; pushed out, the hand stays on the forearm (on the avatar's own surface)."""
@@ -379,17 +395,8 @@ def test_a_carried_correction_that_drags_an_arm_into_the_body_is_dropped():
     rather than being rate-limited out of the body over many frames."""
     from live.core.kinematics import local_matrices
     from live.retarget.contacts_keep import _ARM_PROBES, ARMS, ContactKeeper, _Posed
-    from live.retarget.contacts_self import SourceContacts
 
-    def hanging(pose):  # arms down beside the body, clear of it
-        j = JOINT_INDEX
-        for side, sign in (("left", 1.0), ("right", -1.0)):
-            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
-            pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
-
-    surface, info, glob, pos = _heavy_avatar_posed(hanging)
-    nothing = np.zeros((len(PROBES), len(REGIONS)))
-    source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
+    surface, info, glob, pos, source = _heavy_avatar_arms_hanging()
     clear = measure(surface, glob, pos, ALL_PROBES, 0.05, 0.003)
     assert not len(clear.gap) or clear.gap.min() > 0.0
 
@@ -531,17 +538,8 @@ def test_a_strike_into_the_belly_is_pushed_out_on_the_frame_it_lands():
     from live.core.kinematics import local_matrices
     from live.retarget import contacts_keep
     from live.retarget.contacts_keep import _ARM_PROBES, ARMS, PUSH_DEPTH, ContactKeeper, _Posed
-    from live.retarget.contacts_self import SourceContacts
 
-    def hanging(pose):  # arms down beside the body, clear of it
-        j = JOINT_INDEX
-        for side, sign in (("left", 1.0), ("right", -1.0)):
-            pose[j[f"{side}_elbow"]] = pose[j[f"{side}_shoulder"]] + [0.12 * sign, -0.28, 0.0]
-            pose[j[f"{side}_wrist"]] = pose[j[f"{side}_elbow"]] + [0.06 * sign, -0.25, 0.05]
-
-    surface, info, glob, pos = _heavy_avatar_posed(hanging)
-    nothing = np.zeros((len(PROBES), len(REGIONS)))
-    source = SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
+    surface, info, glob, pos, source = _heavy_avatar_arms_hanging()
 
     def swung(state):  # the retargeter's own pose with the left arm turned by state
         g, p = glob.copy(), pos.copy()

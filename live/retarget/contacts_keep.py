@@ -213,14 +213,13 @@ class ContactKeeper:
         busy = (source.weight * self._contact_weight[:, None]).max(1)[gaps.probe]
         cap = self._floor_cap[gaps.probe] * (1.0 - busy) + s.margin * busy
         goal = np.full_like(src_gap, s.margin) if s.touch else np.maximum(src_gap, s.margin)
-        floor = np.clip(src_gap, s.margin, np.maximum(cap, s.margin))
+        floor = _floor(src_gap, cap, s.margin)
         return w * goal + (1.0 - w) * floor, np.where(w > 0.0, goal, FAR_GOAL), w
 
     def _clear(self, gaps: Gaps, source: SourceContacts) -> np.ndarray:
         """Per row: the floor of a probe set holding nothing, min(the performer's gap, its cap), at
         least the margin."""
-        cap = self._floor_cap[gaps.probe]
-        return np.clip(source.gap[gaps.probe, gaps.region], self.settings.margin, np.maximum(cap, self.settings.margin))
+        return _floor(source.gap[gaps.probe, gaps.region], self._floor_cap[gaps.probe], self.settings.margin)
 
     def residuals(self, gaps: Gaps, source: SourceContacts) -> np.ndarray:
         """Each row's residual (m, along its direction, positive: out): up to its least gap, or
@@ -406,11 +405,7 @@ class ContactKeeper:
                 break
             use |= crossing
             r = np.where(crossing, wall - gap, r)
-        step = step.reshape(2, 4)
-        size = np.sqrt((step[:, :3] ** 2).sum(1))
-        step[:, :3] *= np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-12))[:, None]
-        step[:, 3] = np.clip(step[:, 3], -MAX_STEP, MAX_STEP)
-        return step
+        return _limit_step(step)
 
     def _rows_jacobian(self, arms: list[_Posed], state: np.ndarray, gaps: Gaps, rows: np.ndarray | None = None
                        ) -> np.ndarray:
@@ -496,6 +491,21 @@ class ContactKeeper:
             loc[arm.wrist] = v3.mtm(g_lower, p.g_hand)
 
 
+def _floor(src_gap: np.ndarray, cap: np.ndarray, margin: float) -> np.ndarray:
+    """A row's floor: min(the performer's gap, its cap), never within the margin."""
+    return np.clip(src_gap, margin, np.maximum(cap, margin))
+
+
+def _limit_step(step: np.ndarray) -> np.ndarray:
+    """A solve's step (8,) as (2, 4), each arm's rotation at most MAX_STEP (rad) and its elbow's
+    change at most MAX_STEP."""
+    step = step.reshape(2, 4)
+    size = np.sqrt((step[:, :3] ** 2).sum(1))
+    step[:, :3] *= np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-12))[:, None]
+    step[:, 3] = np.clip(step[:, 3], -MAX_STEP, MAX_STEP)
+    return step
+
+
 def _clamp_bend(arms: list[_Posed], state: np.ndarray) -> None:
     """The elbows' straightening in state (2, 4, in place) kept between straight and MAX_BEND
     (neither past straight nor folded further)."""
@@ -526,11 +536,7 @@ def _push_step(jac: np.ndarray, gap: np.ndarray, lower: np.ndarray, upper: np.nd
             break
         target = np.where(above, ceiling, target)
         use |= below | above
-    step = step.reshape(2, 4)
-    size = np.sqrt((step[:, :3] ** 2).sum(1))
-    step[:, :3] *= np.minimum(1.0, MAX_STEP / np.maximum(size, 1e-12))[:, None]
-    step[:, 3] = np.clip(step[:, 3], -MAX_STEP, MAX_STEP)
-    return step
+    return _limit_step(step)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
