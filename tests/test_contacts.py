@@ -579,21 +579,21 @@ def test_the_two_rows_between_the_hands_point_one_way():
     the two rows (left hand to right hand, and back) asked the arms to go two ways at once. They
     are made opposite, along the difference of their directions; a row of no pair is left as it
     was, and two rows asking the same way are set apart along their points."""
-    from live.retarget.contacts_keep import ARM_PAIRS, _pairs_one_way
+    from live.retarget.contacts_keep import HAND_ROWS, _hands_one_way
     from live.retarget.contacts_surface import Gaps
 
-    pa, ra, pb, rb = ARM_PAIRS[0]
+    (pa, ra), (pb, rb) = HAND_ROWS
     d_a, d_b = np.array([0.44, 0.58, -0.68]), np.array([0.93, 0.12, 0.34])
     d_a, d_b = d_a / np.linalg.norm(d_a), d_b / np.linalg.norm(d_b)
     torso = np.array([0.0, 0.0, 1.0])
     points = np.array([[0.0, 1.0, 0.2], [0.0, 1.02, 0.2], [0.0, 1.0, 0.2]])
     gaps = Gaps(probe=np.array([pa, pb, pa]), region=np.array([ra, rb, REGIONS.index("torso")]),
                 gap=np.array([-0.010, -0.011, 0.02]), direction=np.array([d_a, d_b, torso]), point=points)
-    out = _pairs_one_way(gaps)
+    out = _hands_one_way(gaps)
     way = (d_a - d_b) / np.linalg.norm(d_a - d_b)
     assert np.allclose(out.direction[0], way) and np.allclose(out.direction[1], -way)
     assert np.allclose(out.direction[2], torso)
     assert np.array_equal(out.gap, gaps.gap) and np.array_equal(out.point, gaps.point)
     assert np.array_equal(gaps.direction[0], d_a)  # the measured gaps are not changed in place
-    same = _pairs_one_way(Gaps(gaps.probe, gaps.region, gaps.gap, np.array([torso, torso, torso]), points))
+    same = _hands_one_way(Gaps(gaps.probe, gaps.region, gaps.gap, np.array([torso, torso, torso]), points))
     assert np.allclose(same.direction[0], [0.0, -1.0, 0.0]) and np.allclose(same.direction[1], [0.0, 1.0, 0.0])

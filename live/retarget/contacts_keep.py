@@ -153,16 +153,13 @@ _REGION_ARM = np.array([0 if r.startswith("left_") and r[5:] in ("hand", "arm") 
                         1 if r.startswith("right_") and r[6:] in ("hand", "arm") else -1 for r in REGIONS])
 _REGION_HAND = np.array([r.endswith("_hand") for r in REGIONS])
 
-
-def _probe(side: str, kind: str) -> int:
-    return next(i for i, p in enumerate(PROBES) if p.side == side and p.kind == kind)
-
-
-#: Rows (probe set, region) that measure the same two parts of the two arms from either side:
-#: the two hands. (A hand and the other arm are not such a pair: the arm's region holds the upper
-#: arm too, and the two rows may measure different contacts. Made one way as well, on the tuning
-#: takes a curled-in take's hands met where the performer's did not: precision 92.6 -> 89.6 %.)
-ARM_PAIRS = ((_probe("left", "hand"), REGIONS.index("right_hand"), _probe("right", "hand"), REGIONS.index("left_hand")),)
+#: The two rows between the hands, (probe set, region) each: the left hand's gap to the right
+#: hand and the right hand's to the left. (A hand and the other arm are no such pair: the arm's
+#: region holds the upper arm too, and its two rows may measure different contacts. Made one way
+#: as well, on the tuning takes a curled-in take's hands met where the performer's did not:
+#: precision 92.6 -> 89.6 %.)
+HAND_ROWS = tuple((int(np.flatnonzero(_PROBE_HAND & (_PROBE_ARM == a))[0]), REGIONS.index(f"{other}_hand"))
+                  for a, other in ((0, "right"), (1, "left")))
 _ARM_PROBES = (np.flatnonzero(_PROBE_ARM == 0), np.flatnonzero(_PROBE_ARM == 1))
 
 
@@ -335,7 +332,7 @@ class ContactKeeper:
     def _measure(self, surface: BodySurface, glob: np.ndarray, pos: np.ndarray, reach: np.ndarray,
                  band: np.ndarray) -> Gaps:
         """Every probe set's gaps in this pose, the rows between the hands made one way."""
-        return _pairs_one_way(measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band))
+        return _hands_one_way(measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band))
 
     def _drop_worse(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
                     arms: list[_Posed], state: np.ndarray, last: np.ndarray, gaps: Gaps, reach: np.ndarray,
@@ -517,31 +514,29 @@ class ContactKeeper:
             loc[arm.wrist] = v3.mtm(g_lower, p.g_hand)
 
 
-def _pairs_one_way(gaps: Gaps) -> Gaps:
-    """Gaps whose two rows between the same two parts of the two arms (ARM_PAIRS: the hands),
-    measured from either side, point one way: the difference of their directions, opposite for
-    the two. Inside each other, each part's distance field points to its own nearest skin, and
-    the two directions can ask the same arm to go two ways at once (hands clasped in front of a
-    heavy belly stayed 10-20 mm inside each other, their rows cancelling)."""
-    direction = None
-    for probe_a, region_a, probe_b, region_b in ARM_PAIRS:
-        row_a = np.flatnonzero((gaps.probe == probe_a) & (gaps.region == region_a))
-        row_b = np.flatnonzero((gaps.probe == probe_b) & (gaps.region == region_b))
-        if not (len(row_a) and len(row_b)):
-            continue
-        i, j = row_a[0], row_b[0]
-        # A row's direction is out of its region: where its own probe set should go.
-        way = gaps.direction[i] - gaps.direction[j]
+def _hands_one_way(gaps: Gaps) -> Gaps:
+    """Gaps whose two rows between the hands (HAND_ROWS), measured from either side, point one
+    way: the difference of their directions, opposite for the two. Inside each other, each
+    hand's distance field points to its own nearest skin, and the two directions can ask the same
+    arm to go two ways at once (hands clasped in front of a heavy belly stayed 10-20 mm inside
+    each other, their rows cancelling)."""
+    (probe_a, region_a), (probe_b, region_b) = HAND_ROWS
+    row_a = np.flatnonzero((gaps.probe == probe_a) & (gaps.region == region_a))
+    row_b = np.flatnonzero((gaps.probe == probe_b) & (gaps.region == region_b))
+    if not (len(row_a) and len(row_b)):
+        return gaps
+    i, j = row_a[0], row_b[0]
+    # A row's direction is out of its region: where its own hand should go.
+    way = gaps.direction[i] - gaps.direction[j]
+    size = float(np.sqrt(way @ way))
+    if size < 1e-3:  # the two already ask the same arm both ways: apart along their points
+        way = gaps.point[i] - gaps.point[j]
         size = float(np.sqrt(way @ way))
-        if size < 1e-3:  # the two already ask the same arm both ways: apart along their points
-            way = gaps.point[i] - gaps.point[j]
-            size = float(np.sqrt(way @ way))
-            if size < 1e-6:
-                continue
-        if direction is None:
-            direction = gaps.direction.copy()
-        direction[i], direction[j] = way / size, -way / size
-    return gaps if direction is None else replace(gaps, direction=direction)
+        if size < 1e-6:
+            return gaps
+    direction = gaps.direction.copy()
+    direction[i], direction[j] = way / size, -way / size
+    return replace(gaps, direction=direction)
 
 
 def _floor(src_gap: np.ndarray, cap: np.ndarray, margin: float) -> np.ndarray:
