@@ -132,14 +132,23 @@ class Job:
     split: str = "train"
     realism: bool = False
     edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
+    hard_views: bool = False  # realism views drawn with sim.sensor_realism.HARD_VIEWS
+
+    @property
+    def view_odds(self):
+        from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
+
+        return HARD_VIEWS if self.hard_views else USUAL_VIEWS
 
 
 def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
               anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False,
-              edge_jump_share: float | None = None) -> list[Job]:
+              edge_jump_share: float | None = None, hard_share: float = 0.0) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
-    probability ``anny_share``, else a training preset. "val_real" jobs always have realism."""
+    probability ``anny_share``, else a training preset. "val_real" jobs always have realism.
+    hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``."""
+    from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
     from live.body.library import list_presets
 
     if split not in SPLITS:
@@ -153,9 +162,10 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     names, odds = list(REALISM_CAMERAS), list(REALISM_CAMERAS.values())
     for _ in range(n_jobs):
         clip = clips[int(rng.integers(len(clips)))]
+        hard = bool(realism and split == "train" and hard_share > 0 and rng.random() < hard_share)
         if realism:
             camera = names[int(rng.choice(len(names), p=odds))]
-            closeup = bool(rng.random() < 0.15)
+            closeup = bool(rng.random() < (HARD_VIEWS if hard else USUAL_VIEWS).closeup)
         elif split == "train":
             camera = CAMERAS[int(rng.choice(3, p=[0.7, 0.15, 0.15]))]
             closeup = bool(rng.random() < 0.1)
@@ -165,7 +175,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split, realism, edge_jump_share))
+                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard))
     return jobs
 
 
@@ -229,7 +239,7 @@ def random_view(job: Job, rng: np.random.Generator):
     if job.realism:
         from sim.sensor_realism import realistic_view
 
-        return realistic_view(job.camera, job.closeup, job.seed, rng)
+        return realistic_view(job.camera, job.closeup, job.seed, rng, job.view_odds)
     if job.closeup:
         distance, height = rng.uniform(0.8, 1.4), rng.uniform(1.2, 1.7)
         target = (0.0, float(rng.uniform(1.1, 1.4)), 0.0)
@@ -257,7 +267,7 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import realism_motion
 
-        motion, posture = realism_motion(motion, job.seed)
+        motion, posture = realism_motion(motion, job.seed, job.view_odds)
     root, joints = grounded_joints(motion, body)
     t = len(root)
     span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
@@ -274,7 +284,7 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import random_extras
 
-        extras = random_extras(rng, body, joints, frames, c2w, job.closeup, posture)
+        extras = random_extras(rng, body, joints, frames, c2w, job.closeup, posture, job.view_odds)
         room = extras.room(room)
     # The runtime's finder: the same coarse-to-fine pass and evenly spread sample.
     finder = PersonFinder(PreprocessConfig(num_points=STORED_POINTS, edge_jump_share=job.edge_jump_share))
@@ -335,8 +345,10 @@ def view_conditions(camera_to_world: np.ndarray, posture: str, extras) -> dict:
 
 # ---------------------------------------------------------------------------- the dataset
 def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
-                realism: bool = False, edge_jump_share: float | None = None) -> Path:
+                realism: bool = False, edge_jump_share: float | None = None, hard_share: float = 0.0) -> Path:
     fields = {"split": split, "n": n_samples, "seed": seed, "v": 5, "val_subjects": sorted(VAL_SUBJECTS)}
+    if hard_share > 0:
+        fields.update(hard_share=hard_share)
     if edge_jump_share is not None:
         fields.update(edge_jump_share=edge_jump_share)
     if realism or split == "val_real":
@@ -351,7 +363,8 @@ def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share
 
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
              progress: bool = False, anny: int = 0, anny_share: float = 0.0,
-             realism: bool = False, edge_jump_share: float | None = None) -> dict[str, np.ndarray]:
+             realism: bool = False, edge_jump_share: float | None = None,
+             hard_share: float = 0.0) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
@@ -361,16 +374,18 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     dropped; ``failed`` counts them). anny > 0: training jobs take one of ``anny`` on-demand Anny
     phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``.
     realism: training jobs as users' sensors see people (module doc; "val_real" always).
-    edge_jump_share: the finder leaves depth-edge pixels out of the sample (PreprocessConfig)."""
+    edge_jump_share: the finder leaves depth-edge pixels out of the sample (PreprocessConfig).
+    hard_share: the share of realism training jobs weighted toward hard views (``HARD_VIEWS``)."""
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
-    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share)
+    hard_share = hard_share if realism else 0.0
+    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share, hard_share)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     phenotypes = anny_phenotypes(anny, seed) if anny else None
     jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism,
-                     edge_jump_share=edge_jump_share)
+                     edge_jump_share=edge_jump_share, hard_share=hard_share)
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),

@@ -32,3 +32,19 @@ def test_plan_mixes_anny_bodies_into_training_only():
     assert {j.body for j in mixed if not j.body.startswith("anny:")} <= set(split_bodies(list_presets(), "train"))
     val = plan_jobs("val", 400, seed=1, anny=pool, anny_share=0.3)
     assert all(j.body in split_bodies(list_presets(), "val") and j.subject in VAL_SUBJECTS for j in val)
+
+
+def test_hard_views_weight_training_only_and_leave_the_usual_plan_unchanged():
+    from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS, random_posture
+
+    usual = plan_jobs("train", 4000, seed=0, realism=True)
+    assert usual == plan_jobs("train", 4000, seed=0, realism=True, hard_share=0.0)
+    hard = plan_jobs("train", 4000, seed=0, realism=True, hard_share=0.5)
+    share = np.mean([j.hard_views for j in hard])
+    assert 0.4 < share < 0.6 and not any(j.hard_views for j in usual)
+    closeups = [np.mean([j.closeup for j in hard if j.hard_views == h]) for h in (False, True)]
+    assert closeups[1] > 1.5 * closeups[0]
+    assert not any(j.hard_views for j in plan_jobs("val_real", 400, seed=3, hard_share=0.5))
+    rng = np.random.default_rng(0)
+    seated = [np.mean([random_posture(rng, odds) == "seated" for _ in range(4000)]) for odds in (USUAL_VIEWS, HARD_VIEWS)]
+    assert abs(seated[0] - USUAL_VIEWS.posture["seated"]) < 0.02 and abs(seated[1] - HARD_VIEWS.posture["seated"]) < 0.03
