@@ -9,7 +9,8 @@ clothes, occluders, any camera height and pitch, 40 % without extrinsics; sim.se
 Prints markdown tables (MPJPE / PA-MPJPE mm, PCK@10cm) for docs/results.md: in the person frame,
 and after root alignment (the pelvis moved onto the truth's, as real labelled benchmarks score),
 per sensor and body, and on val_real per view condition (posture, extrinsics hidden, something in
-front, a person behind, clothes, close-up, camera pitch and distance: ``sim.skeleton_data.VIEW_KEYS``).
+front, a person behind, clothes, close-up, camera pitch and distance: ``sim.skeleton_data.VIEW_KEYS``)
+and per posture with extrinsics given or hidden (``CROSSED``).
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ CONDITIONS = (("posture", "posture", None), ("extrinsics hidden", "hidden_extrin
               ("occluder", "occluder", None), ("bystander", "bystander", None), ("dressed", "dressed", None),
               ("close-up", "closeup", None), ("pitch deg", "pitch_deg", (-90, -25, -5, 5, 15, 90)),
               ("distance m", "distance", (0.0, 2.0, 3.0, 4.0, 9.0)))
+#: Pairs of val_real's conditions also scored together: up and the floor are the finder's own
+#: guess when extrinsics are hidden, and how good a guess that is depends on the posture.
+CROSSED = (("posture", "posture", "extrinsics hidden", "hidden_extrinsics"),)
 
 
 def scores(pred: np.ndarray, gt: np.ndarray, root_shift: np.ndarray) -> dict:
@@ -61,6 +65,10 @@ def groups(d: dict, split: str) -> list[tuple[str, np.ndarray]]:
             x = d[key]
             out += [(f"{name}:{lo:g}..{hi:g}", (x >= lo) & (x < hi)) for lo, hi in zip(bins[:-1], bins[1:])
                     if ((x >= lo) & (x < hi)).any()]
+    for name_a, key_a, name_b, key_b in CROSSED:
+        if key_a in d and key_b in d:
+            out += [(f"{name_a}:{a}, {name_b}:{b}", m) for a in np.unique(d[key_a]) for b in np.unique(d[key_b])
+                    if (m := (d[key_a] == a) & (d[key_b] == b)).any()]
     return out
 
 

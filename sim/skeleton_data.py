@@ -148,8 +148,8 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
     probability ``anny_share``, else a training preset. "val_real" jobs always have realism.
     hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``."""
-    from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
     from live.body.library import list_presets
+    from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
 
     if split not in SPLITS:
         raise UserInputError(f"unknown split {split!r}; choose from {', '.join(SPLITS)}")

@@ -27,6 +27,7 @@ def test_val_real_groups_by_view_condition():
     assert g["posture:seated"].sum() == 1 and g["extrinsics hidden:True"].sum() == 3
     assert g["pitch deg:-5..5"].sum() == 2 and g["distance m:2..3"].sum() == 3
     assert "occluder:True" not in g  # data without that key: no group
+    assert g["posture:clip, extrinsics hidden:True"].sum() == 2 and "posture:seated, extrinsics hidden:True" not in g
     assert set(dict(groups(d, "val"))) == {"camera:oak-d", "camera:xtion", "body:a"}
     table = markdown({"val_real": {"m.onnx": {k: scores(np.zeros((1, 22, 3)), np.zeros((1, 22, 3)), np.zeros((1, 1, 3)))
                                               for k in ("all", *g)}}})
