@@ -339,3 +339,19 @@ def test_floor_without_one_in_view_lies_under_the_feet_or_below_a_close_up():
     assert floor_under_person(0.4, 1.4) == pytest.approx(0.4 - FEET_BELOW_LOWEST_M)
     # An upper body cut by the image's bottom edge: an average stature below the top of the head.
     assert floor_under_person(0.9, 1.6, cut_below=True) == pytest.approx(1.6 - ASSUMED_STATURE_M)
+
+
+def test_a_given_camera_height_places_a_floor_out_of_view():
+    # A seated performer's upper body (the head about 1.3 m up), the floor out of view, no extrinsics.
+    seated = capsule_body(JOINTS - np.array([0.0, 0.45, 0.0]))
+    top = float(seated[0][:, 1].max())
+    c2w = look_at_camera(1.4, 1.1, 0.0, target=(0.0, 1.0, 0.0))
+    f = frame(c2w, mesh=seated, room=Room(width=9.0, depth=9.0, floor=False), identity_extrinsics=True)
+    guessed = PersonFinder().find(f)
+    finder = PersonFinder()
+    finder.ground.camera_height_m = float(c2w[1, 3])
+    given = finder.find(f)
+    assert guessed is not None and given is not None and not finder.ground.floor_seen
+    # Without the height the floor is a standing person's; with it, the real one.
+    assert abs(guessed.height_m - 1.70) < 0.1 and abs(given.height_m - top) < 0.06
+    assert given.camera_to_world is not None and given.camera_to_world[1, 3] == pytest.approx(c2w[1, 3])

@@ -26,6 +26,8 @@ class RunOptions:
     model: Path | None = None
     threads: int = 1
     lag: int = 0
+    #: The camera's height above the floor (m), for depth without a camera pose and no floor in view.
+    camera_height: float | None = None
     vmc: str | None = None
     vmc_rate: float = 60.0
     vmc_mtu: int | None = None
@@ -71,7 +73,8 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
     if Path(model).is_file():
         from models.skeleton.runtime import SkeletonStage
 
-        stages.append(SkeletonStage(model_path=model, threads=opts.threads, lag=opts.lag))
+        stages.append(SkeletonStage(model_path=model, threads=opts.threads, lag=opts.lag,
+                                    camera_height_m=opts.camera_height))
         parts["skeleton"] = stages[-1]
     elif opts.lag:
         raise UserInputError("--lag needs the skeleton model (models/weights/skeleton.onnx)")

@@ -25,6 +25,7 @@ def _run_options(args, out: Path, video: Path | None = None, sources=()):
     return RunOptions(out=out, fps=take_fps(sources), avatar=args.avatar, retarget=args.retarget, foot_lock=not args.no_foot_lock,
                       hand_ik=args.hand_ik, model=args.model, threads=args.threads, lag=args.lag, vmc=args.vmc,
                       contacts=getattr(args, "contacts", None) or "auto",
+                      camera_height=getattr(args, "camera_height", None),
                       vmc_rate=args.vmc_rate, vmc_mtu=getattr(args, "vmc_mtu", None), viewer=args.viewer, video=video or args.video,
                       bvh_names=getattr(args, "bvh_names", "avatar"))
 

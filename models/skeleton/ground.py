@@ -245,11 +245,15 @@ class GroundEstimator:
     """The world frame of a camera without extrinsics, kept while the camera stays still.
 
     ``gravity_up``: world up in camera axes from the camera's IMU (set by the skeleton stage),
-    or None. ``recheck_s``: how often the floor is searched again (a camera picked up and put
-    down elsewhere; a floor that came into view). ``changes``: (t_ns, source) at each change."""
+    or None. ``camera_height_m``: the camera's height above the floor as the user measured it,
+    or None: used while no floor is in view, instead of a floor guessed under the performer
+    (a seated performer at a desk would get a standing one's floor). ``recheck_s``: how often
+    the floor is searched again (a camera picked up and put down elsewhere; a floor that came
+    into view). ``changes``: (t_ns, source) at each change."""
 
     recheck_s: float = 2.0
     gravity_up: np.ndarray | None = None
+    camera_height_m: float | None = None
     source: str | None = None
     changes: list[tuple[int, str]] = field(default_factory=list)
     searches: int = 0
@@ -336,8 +340,11 @@ class GroundEstimator:
 
     def camera_to_world(self, height_m: float) -> np.ndarray:
         """(4, 4) camera -> world at the current up: the floor's height when one is seen, else
-        ``height_m`` (the caller's guess, refined from the performer)."""
-        return camera_to_world_from_up(self.up(), self._height if self._height is not None else height_m)
+        the given ``camera_height_m``, else ``height_m`` (the caller's guess, refined from the
+        performer)."""
+        if self._height is not None:
+            return camera_to_world_from_up(self.up(), self._height)
+        return camera_to_world_from_up(self.up(), height_m if self.camera_height_m is None else self.camera_height_m)
 
     def _set_source(self, t_ns: int, source: str) -> None:
         if source != self.source:

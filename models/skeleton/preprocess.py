@@ -204,6 +204,11 @@ class PersonFinder:
 
     @property
     def _no_floor(self) -> bool:
+        """Where the floor is, is not known: no extrinsics, no floor in view, no camera height."""
+        return self._floor_unseen and self.ground.camera_height_m is None
+
+    @property
+    def _floor_unseen(self) -> bool:
         return self.ground.source != "given" and not self.ground.floor_seen
 
     def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
@@ -297,7 +302,7 @@ class PersonFinder:
             return None
         c2w = found.c2w
         person = found.person
-        if self._no_floor:
+        if self._floor_unseen:
             c2w, person = self._place_floor(frame.t_ns, found)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
         same = (self._last_center is not None and cfg.track_margin_m is not None
@@ -326,13 +331,18 @@ class PersonFinder:
                            camera_to_world=c2w)
 
     def _place_floor(self, t_ns: int, found: _Search) -> tuple[np.ndarray, np.ndarray]:
-        """No floor in view: the floor under the performer (``floor_under_person``, smoothed over
-        frames), and their vertical axis refining a level camera's up. Returns the frame's
-        camera_to_world and the person's points (3, P) at that floor."""
+        """No floor in view: the floor at the given camera height, else under the performer
+        (``floor_under_person``, smoothed over frames), and their vertical axis refining a level
+        camera's up. Returns the frame's camera_to_world and the person's points (3, P) at that
+        floor."""
         person = found.person
-        y_low, y_top = (float(v) for v in np.quantile(person[1], (0.01, 0.99)))
-        height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top, found.cut_below)
-        self._height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
+        given = self.ground.camera_height_m
+        if given is not None:
+            self._height_est = float(given)
+        else:
+            y_low, y_top = (float(v) for v in np.quantile(person[1], (0.01, 0.99)))
+            height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top, found.cut_below)
+            self._height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
         c2w = found.c2w.copy()
         c2w[1, 3] = self._height_est
         person = person.copy()

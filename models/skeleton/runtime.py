@@ -108,7 +108,10 @@ class SkeletonStage:
     on only without a temporal model); temporal=False, filter=False gives raw joints.
     keep_bones: bone lengths fixed per performer once learned (off by
     default: with the current model it costs ~10 mm MPJPE); flip_guard: undo whole-body
-    left/right label flips. reset_after_s: forget the performer after this long without one."""
+    left/right label flips. reset_after_s: forget the performer after this long without one.
+    camera_height_m: the camera's height above the floor, for depth without a camera pose when
+    the floor is not in view (else the floor is guessed under the performer: a standing
+    person's, wrong for one seated at a desk; docs/skeleton.md)."""
 
     name = "skeleton"
 
@@ -116,11 +119,13 @@ class SkeletonStage:
                  finder: PersonFinder | None = None, temporal: bool | str | Path = True, lag: int = 0,
                  min_cutoff: float = 1.5, beta: float = 3.0,
                  filter: bool | None = None, keep_bones: bool = False, flip_guard: bool = True,
-                 reset_after_s: float = 0.5):
+                 reset_after_s: float = 0.5, camera_height_m: float | None = None):
         self.regressor = SkeletonRegressor(model_path, threads)
         self.temporal = _open_temporal(temporal, self.regressor.path, threads, int(lag))
         self.lag_s = 0.0 if self.temporal is None else self.temporal.lag_s  # latency the model adds
         self.finder = finder or PersonFinder(self.regressor.preprocess_config())
+        if camera_height_m is not None:
+            self.finder.ground.camera_height_m = float(camera_height_m)
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
         # The temporal model smooths already (and better, docs/skeleton.md): One Euro on top would
         # only add lag, so by default it runs only without one.
@@ -160,12 +165,14 @@ class SkeletonStage:
     def details(self) -> dict:
         """For stats.json: where up and the floor came from (given extrinsics, the camera's IMU,
         a floor plane, a level camera refined by the performer), each change of that source with
-        its time, and the camera's height above the floor of the last frame solved."""
+        its time, the camera's height above the floor of the last frame solved, and the height
+        the user gave (``--camera-height``, or None)."""
         finder = self.finder
         c2w = self._solved_in[-1][1] if self._solved_in else None
         return {"up_source": finder.up_source,
                 "up_source_changes": [{"t_ns": t, "source": s} for t, s in finder.ground.changes],
-                "camera_height_m": None if c2w is None else round(float(c2w[1, 3]), 3)}
+                "camera_height_m": None if c2w is None else round(float(c2w[1, 3]), 3),
+                "camera_height_given_m": finder.ground.camera_height_m}
 
     def observe(self, frame: object) -> None:
         """Side frames in stream order. The samples of the camera's own IMU (a ``<camera>_imu``
