@@ -168,3 +168,16 @@ def test_the_cli_and_the_batch_command_do_not_import_ray():
             "print(','.join(m for m in sys.modules if m.split('.')[0] == 'ray'))\n")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+def test_the_camera_height_passes_on_to_each_replay():
+    import argparse
+
+    from live.app.batch_args import REPLAY_OPTIONS, passthrough
+    from live.app.cli import build_parser
+
+    given = argparse.Namespace(**{flag.lstrip("-").replace("-", "_"): None for flag, _ in REPLAY_OPTIONS})
+    given.camera_height = 1.1
+    line = passthrough(given, REPLAY_OPTIONS)
+    assert line == ["--camera-height", "1.1"]
+    assert build_parser().parse_args(["replay", "s.mcap", "--out", "o", *line]).camera_height == 1.1
