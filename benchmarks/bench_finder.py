@@ -1,6 +1,6 @@
 """Frames with the performer in view and no skeleton, over camera heights, pitches and floors.
 
-Run: .venv/bin/python benchmarks/bench_finder.py [--quick] [--json FILE] [--workers 2] [--camera-height]
+Run: .venv/bin/python benchmarks/bench_finder.py [--quick] [--json FILE] [--workers 2]
 
 A held-out test set of synthetic sessions (held-out CMU subjects on held-out bodies, as
 ``sim.skeleton_data`` splits them), cached under ``.cache/finder_bench``: the OAK-D at heights
@@ -240,9 +240,8 @@ def _root_aligned_error(pred: np.ndarray, truth_world: np.ndarray, solved_c2w: n
     return float(np.linalg.norm((pred - pred[0]) - (truth - truth[0]), axis=-1).mean())
 
 
-def replay(spec: Spec, stage_factory, give_height: bool = False) -> dict:
-    """One session through a fresh stage: per-frame records and the session's summary.
-    give_height: the stage is told the camera's true height above the floor (``--camera-height``)."""
+def replay(spec: Spec, stage_factory) -> dict:
+    """One session through a fresh stage: per-frame records and the session's summary."""
     from live.core.metrics import pa_mpjpe
     from live.evaluation.skeleton import session_frames
     from live.io.session import SessionReader
@@ -254,8 +253,6 @@ def replay(spec: Spec, stage_factory, give_height: bool = False) -> dict:
     pairs = session_frames(spec.path)
     share = floor_share(pairs[0][0].depth_mm, pairs[0][0].intrinsics, true_c2w)
     stage = stage_factory()
-    if give_height:
-        stage.finder.ground.camera_height_m = float(true_c2w[1, 3])
     find = stage.finder.find
     finder_ms: list[float] = []
 
@@ -438,8 +435,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--temporal", type=Path, default=None, metavar="ONNX",
                    help="the temporal model behind it, even one trained behind another regressor "
                         "(default: the shipped one when it matches the regressor)")
-    p.add_argument("--camera-height", action="store_true",
-                   help="tell the stage each camera's true height above the floor, as `--camera-height M` does")
     p.add_argument("--label", default=None, help="a name for this run in the output (default: the git revision)")
     args = p.parse_args(argv)
     if args.workers < 1 or args.threads < 1:
@@ -447,16 +442,16 @@ def main(argv: list[str] | None = None) -> int:
     specs, skipped = plan(args.quick)
     generate(specs, args.workers)
     # Warm-up (ONNX sessions, caches): not timed.
-    replay(specs[0], lambda: make_stage(args), args.camera_height)
+    replay(specs[0], lambda: make_stage(args))
     sessions = []
     for i, spec in enumerate(specs):
-        sessions.append(replay(spec, lambda: make_stage(args), args.camera_height))
+        sessions.append(replay(spec, lambda: make_stage(args)))
         print(f"\rreplayed {i + 1}/{len(specs)}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     rep = report(sessions, skipped)
     rev = args.label or _revision()
-    print(f"{len(specs)} sessions, held-out clips and bodies, extrinsics hidden"
-          f"{' (camera height given)' if args.camera_height else ''}, {CAMERA} at {FPS:g} fps (revision {rev})")
+    print(f"{len(specs)} sessions, held-out clips and bodies, extrinsics hidden, {CAMERA} at {FPS:g} fps "
+          f"(revision {rev})")
     print(format_tables(rep))
     if args.json is not None:
         args.json.write_text(json.dumps({"revision": rev, "quick": args.quick, "in_view_joints": IN_VIEW_JOINTS,

@@ -180,29 +180,21 @@ def test_outputs_take_the_takes_frame_rate_from_sessions_and_depth_folders(tmp_p
             assert float(s.duration * s.time_base) == pytest.approx(9 / 15, abs=1e-3)
 
 
-def test_replay_with_the_camera_height_places_a_floor_out_of_view(tmp_path):
-    from live.core.skeleton import default_rest_joints
-    from sim.depth_camera import VirtualDepthCamera, look_at_camera
-    from sim.room import Room, capsule_body
-
-    # A seated performer's upper body (head about 1.3 m up) in a room whose floor returns no depth.
-    seated = capsule_body(default_rest_joints(1.75).astype(np.float64) - np.array([0.0, 0.45, 0.0]))
-    cam = VirtualDepthCamera("oak-d", look_at_camera(1.4, 1.1, 0.0, target=(0.0, 1.0, 0.0)))
-    depth = cam.render(*seated, room=Room(width=9.0, depth=9.0, floor=False))
-    folder = tmp_path / "depth"
-    folder.mkdir()
-    for i in range(3):
-        cv2.imwrite(str(folder / f"{i:04d}.png"), depth)
-    k = cam.intrinsics
-    (folder / "intrinsics.json").write_text(json.dumps({"fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2],
-                                                        "width": depth.shape[1], "height": depth.shape[0], "fps": 30}))
-    heights = {}
+def test_replay_with_the_camera_height_places_a_floor_out_of_view(tmp_path, shared_bvh):
+    # A seated performer close to a camera on a desk: no floor returned, no extrinsics, the
+    # camera's IMU streamed (it gives up; the height is used with it).
+    session = tmp_path / "seated.mcap"
+    assert main(["synth", "--motion", str(shared_bvh / "cc_002_01.bvh"), "--out", str(session), "--seconds", "0.5", "--camera-imu",
+                 "--posture", "seated", "--floor", "none", "--hide-extrinsics", "--distance", "1.6", "--height", "1.1",
+                 "--pitch", "-10"]) == 0
+    details = {}
     for name, extra in (("guessed", []), ("given", ["--camera-height", "1.1"])):
         out = tmp_path / name
-        assert main(["replay", str(folder), "--out", str(out), "--quiet", *extra]) == 0
-        details = json.loads((out / "stats.json").read_text())["stages"]["skeleton"]["details"]
-        heights[name] = (details["camera_height_m"], details["camera_height_given_m"])
-    assert heights["given"] == (1.1, 1.1)
-    # Guessed, the floor is a standing person's: 1.70 m below the head, about 0.4 m too low.
-    assert heights["guessed"][1] is None and heights["guessed"][0] > 1.4
-    assert main(["replay", str(folder), "--out", str(tmp_path / "bad"), "--camera-height", "-1"]) == 2
+        assert main(["replay", str(session), "--out", str(out), "--quiet", *extra]) == 0
+        details[name] = json.loads((out / "stats.json").read_text())["stages"]["skeleton"]["details"]
+    assert details["given"]["up_source"] == details["guessed"]["up_source"] == "imu"
+    assert details["given"]["camera_height_m"] == pytest.approx(1.1) and details["given"]["camera_height_given_m"] == 1.1
+    # Guessed, the floor is a standing person's (1.70 m below the head): far from the real one.
+    assert details["guessed"]["camera_height_given_m"] is None
+    assert abs(details["guessed"]["camera_height_m"] - 1.1) > 0.2
+    assert main(["replay", str(session), "--out", str(tmp_path / "bad"), "--camera-height", "-1"]) == 2

@@ -350,8 +350,14 @@ def test_a_given_camera_height_places_a_floor_out_of_view():
     guessed = PersonFinder().find(f)
     finder = PersonFinder()
     finder.ground.camera_height_m = float(c2w[1, 3])
+    without_imu = finder.find(f)
+    finder = PersonFinder()
+    finder.ground.camera_height_m = float(c2w[1, 3])
+    finder.gravity_up = c2w[1, :3]  # world up in camera axes, as the camera's IMU gives it
     given = finder.find(f)
     assert guessed is not None and given is not None and not finder.ground.floor_seen
-    # Without the height the floor is a standing person's; with it, the real one.
+    # Without the height the floor is a standing person's; with it and the IMU's up, the real one;
+    # without the IMU the height is not used (up is a guess there too).
     assert abs(guessed.height_m - 1.70) < 0.1 and abs(given.height_m - top) < 0.06
+    assert without_imu is not None and without_imu.height_m == pytest.approx(guessed.height_m)
     assert given.camera_to_world is not None and given.camera_to_world[1, 3] == pytest.approx(c2w[1, 3])

@@ -21,8 +21,8 @@ REPLAY_OPTIONS: tuple[tuple[str, dict], ...] = (
                    "Ray task asks for"}),
     ("--lag", {"type": arg.lag, "metavar": "FRAMES", "help": "skeleton lag in frames (0 or 2): see `livecap replay`"}),
     ("--camera-height", {"type": arg.camera_height, "metavar": "M",
-                         "help": "the depth camera's height above the floor, m, for depth without a camera pose "
-                         "that cannot see the floor: see `livecap replay`"}),
+                         "help": "the depth camera's height above the floor, m, used with the camera's IMU, for "
+                         "depth without a camera pose that cannot see the floor: see `livecap replay`"}),
     ("--only", {"choices": ["depth", "imu", "fused"], "help": "with depth + IMU sessions: depth only, suit only, or fused"}),
     ("--calibration", {"type": Path, "help": "suit calibration (from `livecap calibrate`)"}),
     ("--bvh-names", {"choices": ["avatar", "canonical"], "help": "avatar.bvh's joint names (default avatar)"}),

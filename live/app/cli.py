@@ -61,8 +61,9 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
     p.add_argument("--lag", type=arg.lag, default=0, metavar="FRAMES", help=LAG_HELP)
     p.add_argument("--camera-height", type=arg.camera_height, default=None, metavar="M",
                    help="the depth camera's height above the floor in metres, for depth without a camera pose "
-                   "when the floor is not in view (a performer seated at a desk): otherwise the floor is "
-                   "guessed under the performer, for a standing person")
+                   "when the floor is not in view (a performer seated at a desk); used once the camera's IMU "
+                   "gives up (an OAK streams it): otherwise the floor is guessed under the performer, for a "
+                   "standing person")
     p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
                    "(e.g. 127.0.0.1:39539); off unless given")
     p.add_argument("--vmc-rate", type=arg.vmc_rate, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")

@@ -246,8 +246,10 @@ class GroundEstimator:
 
     ``gravity_up``: world up in camera axes from the camera's IMU (set by the skeleton stage),
     or None. ``camera_height_m``: the camera's height above the floor as the user measured it,
-    or None: used while no floor is in view, instead of a floor guessed under the performer
-    (a seated performer at a desk would get a standing one's floor). ``recheck_s``: how often
+    or None: used while no floor is in view and the IMU gives up (``known_height``), instead of
+    a floor guessed under the performer (a seated performer at a desk would get a standing one's
+    floor). Without an IMU, up is itself a guess there, and a fixed height under a tilted up
+    placed the performer worse than the guess (docs/results.md). ``recheck_s``: how often
     the floor is searched again (a camera picked up and put down elsewhere; a floor that came
     into view). ``changes``: (t_ns, source) at each change."""
 
@@ -279,6 +281,11 @@ class GroundEstimator:
     @property
     def floor_seen(self) -> bool:
         return self._height is not None
+
+    @property
+    def known_height(self) -> float | None:
+        """The given camera height, while the camera's IMU gives up; else None."""
+        return self.camera_height_m if self.gravity_up is not None else None
 
     def up(self) -> np.ndarray:
         """The current up in camera axes."""
@@ -340,11 +347,12 @@ class GroundEstimator:
 
     def camera_to_world(self, height_m: float) -> np.ndarray:
         """(4, 4) camera -> world at the current up: the floor's height when one is seen, else
-        the given ``camera_height_m``, else ``height_m`` (the caller's guess, refined from the
-        performer)."""
+        the given camera height with the IMU's up (``known_height``), else ``height_m`` (the
+        caller's guess, refined from the performer)."""
         if self._height is not None:
             return camera_to_world_from_up(self.up(), self._height)
-        return camera_to_world_from_up(self.up(), height_m if self.camera_height_m is None else self.camera_height_m)
+        known = self.known_height
+        return camera_to_world_from_up(self.up(), height_m if known is None else known)
 
     def _set_source(self, t_ns: int, source: str) -> None:
         if source != self.source:

@@ -204,11 +204,9 @@ class PersonFinder:
 
     @property
     def _no_floor(self) -> bool:
-        """Where the floor is, is not known: no extrinsics, no floor in view, no camera height."""
-        return self._floor_unseen and self.ground.camera_height_m is None
-
-    @property
-    def _floor_unseen(self) -> bool:
+        """No extrinsics and no floor in view. The search then lifts the lowest points to the
+        floor whatever up is (a given camera height with a wrong up would sink the performer
+        into it: lost or found on clutter), and the floor is placed once they are found."""
         return self.ground.source != "given" and not self.ground.floor_seen
 
     def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
@@ -302,7 +300,7 @@ class PersonFinder:
             return None
         c2w = found.c2w
         person = found.person
-        if self._floor_unseen:
+        if self._no_floor:
             c2w, person = self._place_floor(frame.t_ns, found)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
         same = (self._last_center is not None and cfg.track_margin_m is not None
@@ -331,12 +329,12 @@ class PersonFinder:
                            camera_to_world=c2w)
 
     def _place_floor(self, t_ns: int, found: _Search) -> tuple[np.ndarray, np.ndarray]:
-        """No floor in view: the floor at the given camera height, else under the performer
+        """No floor in view: the floor at the given camera height (with the IMU's up), else under the performer
         (``floor_under_person``, smoothed over frames), and their vertical axis refining a level
         camera's up. Returns the frame's camera_to_world and the person's points (3, P) at that
         floor."""
         person = found.person
-        given = self.ground.camera_height_m
+        given = self.ground.known_height
         if given is not None:
             self._height_est = float(given)
         else:

@@ -110,8 +110,8 @@ class SkeletonStage:
     default: with the current model it costs ~10 mm MPJPE); flip_guard: undo whole-body
     left/right label flips. reset_after_s: forget the performer after this long without one.
     camera_height_m: the camera's height above the floor, for depth without a camera pose when
-    the floor is not in view (else the floor is guessed under the performer: a standing
-    person's, wrong for one seated at a desk; docs/skeleton.md)."""
+    the floor is not in view, used once the camera's IMU gives up (else the floor is guessed
+    under the performer: a standing person's, wrong for one seated at a desk; docs/skeleton.md)."""
 
     name = "skeleton"
 
