@@ -329,10 +329,10 @@ class PersonFinder:
                            camera_to_world=c2w)
 
     def _place_floor(self, t_ns: int, found: _Search) -> tuple[np.ndarray, np.ndarray]:
-        """No floor in view: the floor at the given camera height (with the IMU's up), else under the performer
-        (``floor_under_person``, smoothed over frames), and their vertical axis refining a level
-        camera's up. Returns the frame's camera_to_world and the person's points (3, P) at that
-        floor."""
+        """No floor in view: the floor at the given camera height (with the IMU's up), else under
+        the performer (``floor_under_person``, smoothed over frames), and their vertical axis
+        refining a level camera's up. Returns the frame's camera_to_world and the person's points
+        (3, P) at that floor."""
         person = found.person
         given = self.ground.known_height
         if given is not None:
