@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from live.core import assets
-from live.core.metrics import mpjpe, pck
+from research.compare_skeleton import scores
 
 #: The variants: (name, the camera's height given, up from an IMU, the whole pose given).
 VARIANTS = (("guessed", False, False, False), ("camera height", True, False, False),
@@ -90,10 +90,8 @@ def solve_variant(model: Path, n_val: int, height: bool, imu: bool, pose: bool, 
 
 
 def score(pred: np.ndarray, gt: np.ndarray) -> dict:
-    aligned = pred + (gt[:, :1] - pred[:, :1])
-    return {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 3),
-            "root_aligned_mpjpe_mm": round(1000 * mpjpe(aligned, gt), 1),
-            "root_aligned_pck_10cm": round(pck(aligned, gt, 0.1), 3)}
+    """compare_skeleton's scores, root alignment moving each frame's pelvis onto the truth's."""
+    return scores(pred, gt, gt[:, :1] - pred[:, :1])
 
 
 def table(results: dict) -> str:
