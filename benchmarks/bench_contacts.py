@@ -1,7 +1,7 @@
 """Per-frame cost of the self-contact correction in the retarget stage, beside the stage without it.
 
 Run: .venv/bin/python benchmarks/bench_contacts.py [--frames 600] [--source BODY] [--targets A,B]
-     [--retarget analytic|learned] [--performer true|fitted]
+     [--retarget analytic|learned] [--performer true|fitted] [--also-held]
 Timing (median / p95 ms, 10 warm-up frames skipped; wall clock, and the thread's CPU time, which
 a machine busy with other jobs does not inflate), one process, the two configurations run
 frame by frame in turn (so that a busy machine slows both alike), as the pipeline's retarget
@@ -13,6 +13,8 @@ synthetic session; ``--performer fitted``: a template fitted to the skeleton, wi
 estimated performer's wider contact settings, as a live depth or suit performer gets). The motion: clips with self-contacts, back to back at 30 fps (hands on the
 belly, curled in: CMU subject 49; washing: subject 2; a walk whose hands pass the thighs:
 subject 16), about a third of the frames in contact. Goal: the stage with contacts <= 2 ms p95.
+``--also-held``: a third configuration in turn, the correction with ``let_go`` off (an arm's
+correction held between contacts, as for an estimated performer), the baseline of letting go.
 Also: building an avatar's surface (signed distance grids) with the cache cold, once per avatar.
 BLAS runs single-threaded (OPENBLAS_NUM_THREADS=1 unless set), as the CLI runs it.
 """
@@ -62,7 +64,11 @@ def main() -> None:
     ap.add_argument("--retarget", default="analytic", choices=("analytic", "learned"))
     ap.add_argument("--performer", default="true", choices=("true", "fitted"),
                     help="the performer's surface: its true body, or a template fitted to its skeleton")
+    ap.add_argument("--also-held", action="store_true",
+                    help="also the correction with let_go off (held between contacts), in turn with the others")
     args = ap.parse_args()
+    from dataclasses import replace
+
     from live.body.library import load_body
     from live.body.skinning import pose_transforms, skin
     from live.evaluation.retarget import make_retargeter
@@ -78,13 +84,18 @@ def main() -> None:
         tgt = load_body(name)
         target = body_surface(tgt)
         plain = make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0)
-        kept = ContactRetargeter(make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints, 30.0), target,
-                                 tgt.rest_joints, src.rest_joints, performer,
-                                 settings=settings_for(args.performer == "fitted"))
-        times: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
-        cpu: dict[str, list[float]] = {"without contacts": [], "with contacts": []}
+        settings = settings_for(args.performer == "fitted")
+        stages = {"without contacts": plain}
+        for label, chosen in (("with contacts", settings), ("held between", replace(settings, let_go=False))):
+            if label == "with contacts" or args.also_held:
+                stages[label] = ContactRetargeter(make_retargeter(args.retarget, src.rest_joints, tgt.rest_joints,
+                                                                  30.0), target, tgt.rest_joints, src.rest_joints,
+                                                  performer, settings=chosen)
+        kept = stages["with contacts"]
+        times: dict[str, list[float]] = {label: [] for label in stages}
+        cpu: dict[str, list[float]] = {label: [] for label in stages}
         for j in joints:
-            for label, rt in (("without contacts", plain), ("with contacts", kept)):
+            for label, rt in stages.items():
                 t0, c0 = time.perf_counter(), time.thread_time()
                 _, _, posed = rt.step(j)
                 skin(tgt.vertices, tgt.weights, pose_transforms(rt.last_globals, posed, tgt.rest_joints)[None])
@@ -100,6 +111,9 @@ def main() -> None:
                 print(f"     {name} {label:18s} {stats[label]['p50']:7.3f} / {stats[label]['p95']:7.3f}")
             a, b = stats["without contacts"], stats["with contacts"]
             print(f"     {name} {'ratio':18s} {b['p50'] / a['p50']:7.2f}x / {b['p95'] / a['p95']:6.2f}x")
+            if "held between" in stats:
+                h = stats["held between"]
+                print(f"     {name} {'ratio to held':18s} {b['p50'] / h['p50']:7.2f}x / {b['p95'] / h['p95']:6.2f}x")
     t0 = time.perf_counter()
     build_surface_model(load_body(args.targets.split(",")[-1]))
     print(f"  building an avatar's surface (cache cold, once per avatar): {time.perf_counter() - t0:.2f} s")

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from live.core import assets
-from live.core.metrics import mpjpe, pa_mpjpe, pck
+from live.core.metrics import mpjpe, pa_mpjpe, pck, turned_share
+from live.core.skeleton import NUM_JOINTS
 
 SPLITS = (("val", 1), ("val_upper", 2), ("val_real", 3))
 
@@ -40,12 +41,14 @@ CROSSED = (("posture", "posture", "extrinsics hidden", "hidden_extrinsics"),)
 def scores(pred: np.ndarray, gt: np.ndarray, root_shift: np.ndarray) -> dict:
     """MPJPE / PA-MPJPE / PCK@10cm of pred (T, J, 3) against gt, and the same two after root
     alignment: pred + root_shift ((T, 1, 3): the truth's pelvis less the predicted one), as real
-    labelled benchmarks score."""
+    labelled benchmarks score; and the share of frames whose body is turned more than 45 degrees
+    from the truth's (read facing away: no alignment of the root repairs them)."""
     aligned = pred + root_shift
     return {"frames": int(len(pred)), "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
             "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1), "pck_10cm": round(pck(pred, gt, 0.1), 3),
             "root_aligned_mpjpe_mm": round(1000 * mpjpe(aligned, gt), 1),
-            "root_aligned_pck_10cm": round(pck(aligned, gt, 0.1), 3)}
+            "root_aligned_pck_10cm": round(pck(aligned, gt, 0.1), 3),
+            "turned_45_share": round(turned_share(pred, gt, 45.0), 3) if pred.shape[1] == NUM_JOINTS else None}
 
 
 def groups(d: dict, split: str) -> list[tuple[str, np.ndarray]]:
@@ -109,12 +112,13 @@ def markdown(results: dict) -> str:
         names = list(by_model)
         groups = list(next(iter(by_model.values())))
         lines.append(f"\n**{split}** (MPJPE / PA-MPJPE mm, PCK@10cm; root-aligned MPJPE mm / PCK@10cm"
-                     f"{'; upper body' if split == 'val_upper' else ''})\n")
+                     f"{'; upper body' if split == 'val_upper' else '; frames turned over 45 degrees'})\n")
         lines.append("| group | frames | " + " | ".join(names) + " |")
         lines.append("|---|---|" + "---|" * len(names))
         for g in groups:
             cells = [f"{r['mpjpe_mm']} / {r['pa_mpjpe_mm']} / {r['pck_10cm']:.3f}; "
                      f"{r['root_aligned_mpjpe_mm']} / {r['root_aligned_pck_10cm']:.3f}"
+                     + (f"; {100 * r['turned_45_share']:.0f} %" if r.get("turned_45_share") is not None else "")
                      for r in (by_model[m][g] for m in names)]
             lines.append(f"| {g} | {by_model[names[0]][g]['frames']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

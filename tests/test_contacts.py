@@ -531,6 +531,62 @@ def test_the_stage_reads_the_depth_stages_skeleton_as_an_estimate():
     assert suit._make(rest).settings == ContactSettings()
 
 
+@pytest.mark.parametrize("outward", [True, False])
+def test_an_arm_holding_nothing_lets_its_correction_go_unless_that_sinks_it(outward):
+    """(Exact skeletons' settings: ``let_go``.) A correction carried into frames where the performer touches nothing: with nothing in the
+    way (the arm turned out, away from the heavy avatar's body) it is let go at ``release_s`` (within
+    the rate limit), where the damped steps alone stall part of the way; where letting it go would sink the arm (turned in, the
+    correction holding it out of the belly), the arm stays out, frame after frame, without
+    bouncing."""
+    from live.core.kinematics import local_matrices
+    from live.retarget.contacts_keep import _ARM_PROBES, ARMS, PUSH_DEPTH, ContactKeeper, _Posed
+
+    surface, info, glob, pos, source = _heavy_avatar_arms_hanging()
+
+    def swung(state):  # the pose with the left arm turned by state
+        g, p = glob.copy(), pos.copy()
+        ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
+        return g, p
+
+    def depth_of_left(g, p):
+        gaps = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
+        return -gaps.gap.min() if len(gaps.gap) else 0.0
+
+    if outward:  # the retargeter's arm hangs clear; the correction holds it turned out
+        base, turn = (glob, pos), np.array([[0.0, 0.0, 0.5, 0.0], [0.0] * 4])
+    else:  # the retargeter's arm is 3 cm inside the belly; the correction holds it out
+        base = next(sw for sw in (swung(np.array([[0.0, 0.0, -a, 0.0], [0.0] * 4]))
+                                  for a in np.linspace(0.2, 1.4, 49)) if depth_of_left(*sw) > 0.03)
+        turn = None
+
+    def run(release: bool, frames: int = 12):
+        keeper = ContactKeeper(info.offsets, ContactSettings(let_go=release))
+        if turn is not None:
+            keeper(surface, base[0].copy(), local_matrices(base[0]), base[1].copy(), source, 1 / 30)
+            keeper.state = turn.copy()
+            keeper.state[:, :3] = turn[:, :3] @ base[0][0]  # kept in the pelvis frame
+        wrists, depths, sizes = [], [], []
+        for _ in range(frames):
+            g, p = base[0].copy(), base[1].copy()
+            keeper(surface, g, local_matrices(base[0]), p, source, 1 / 30)
+            wrists.append(p[ARMS[0].wrist].copy())
+            depths.append(depth_of_left(g, p))
+            sizes.append(float(np.abs(keeper.state[0]).max()))
+        return np.array(wrists), np.array(depths), np.array(sizes)
+
+    wrists, depths, let_go = run(True)
+    _, _, stepped = run(False)
+    if outward:
+        decay = np.exp(-(1 / 30) / ContactKeeper(info.offsets).release_s)
+        assert let_go[-1] < 0.5 * decay ** 11  # let go at release_s (and the steps' pull on top)
+        assert stepped[-1] > 3 * let_go[-1]  # the damped steps alone stall part of the way
+    else:
+        assert depths[2:].max() < PUSH_DEPTH + 0.002  # held out of the belly once pushed
+        speed = np.linalg.norm(np.diff(wrists[2:], axis=0), axis=1)
+        assert speed.max() < 0.003  # still: no letting in and pushing out again
+        assert np.allclose(let_go[2:], stepped[2:], atol=1e-9)  # letting go would sink it: not done
+
+
 def test_a_strike_into_the_belly_is_pushed_out_on_the_frame_it_lands():
     """The left arm swings from beside the body to 9 cm inside the heavy belly in one frame (a
     strike): the damped steps alone leave it 2 cm inside; the push-out after them takes it out to

@@ -106,3 +106,18 @@ def test_shape_errors_are_user_input_errors():
         metrics.mpjpe(np.zeros((2, 22, 3)), np.zeros((3, 22, 3)))
     with pytest.raises(UserInputError):
         metrics.mdel(np.zeros((1, 5, 3)), np.zeros((4, 3)))
+
+
+def test_turned_share_counts_frames_whose_body_faces_elsewhere():
+    """A body turned 30 degrees is not counted at 45, one turned 90 or read facing away (180) is;
+    neither a translation nor a crouch counts."""
+    from live.core.heading import yaw_matrix
+    from live.core.skeleton import default_rest_joints
+
+    rest = default_rest_joints()
+    frames = [rest @ yaw_matrix(np.radians(a)).T + [0.3, 0.0, -1.0] for a in (0.0, 30.0, 90.0, 180.0)]
+    pred = np.stack(frames)
+    gt = np.stack([rest] * 4)
+    assert metrics.turned_share(pred, gt, 45.0) == pytest.approx(0.5)
+    assert metrics.turned_share(pred, gt, 100.0) == pytest.approx(0.25)
+    assert metrics.turned_share(gt * [1.0, 0.6, 1.0], gt) == 0.0

@@ -9,6 +9,9 @@ unit in the key (``mpjpe_mm``, ``acc_mm_per_frame2``).
 * PA-MPJPE: MPJPE after aligning each predicted frame to the ground truth with the best
   similarity transform (rotation, uniform scale, translation; Umeyama / orthogonal Procrustes).
 * PCK: fraction of joints closer than ``threshold`` metres.
+* Turned share: fraction of frames whose body faces more than ``degrees`` away from the truth's
+  (the horizontal direction across hips and shoulders; 22-joint skeletons): a body read facing
+  away, a frame no joint alignment repairs.
 * Acc error: mean norm of the difference of the second finite differences of pred and gt, in
   metres per frame^2 at the motion's own frame rate (the unit of papers that report "Acc"
   without a frame rate).
@@ -22,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.errors import UserInputError
+from live.core.skeleton import JOINT_INDEX as _J
 
 
 def _pair(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,6 +84,20 @@ def pck(pred: np.ndarray, gt: np.ndarray, threshold: float = 0.1) -> float:
     """Fraction in [0, 1] of joints (over all frames) within ``threshold`` metres of the truth."""
     pred, gt = _pair(pred, gt)
     return float((np.linalg.norm(pred - gt, axis=-1) < threshold).mean())
+
+
+def turned_share(pred: np.ndarray, gt: np.ndarray, degrees: float = 45.0) -> float:
+    """Fraction in [0, 1] of frames whose body is turned more than ``degrees`` about the vertical
+    from the truth's: the heading of (left - right hip) + (left - right shoulder), 22-joint
+    skeletons (T x 22 x 3, y up)."""
+    pred, gt = _pair(pred, gt)
+
+    def across(j: np.ndarray) -> np.ndarray:
+        v = j[:, _J["left_hip"]] - j[:, _J["right_hip"]] + j[:, _J["left_shoulder"]] - j[:, _J["right_shoulder"]]
+        return np.arctan2(v[:, 0], v[:, 2])
+
+    turn = (across(pred) - across(gt) + np.pi) % (2 * np.pi) - np.pi
+    return float((np.abs(turn) > np.radians(degrees)).mean())
 
 
 def acceleration_error(pred: np.ndarray, gt: np.ndarray) -> float:

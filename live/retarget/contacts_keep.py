@@ -26,9 +26,9 @@ After any retargeter (rotation copy or the network), on the avatar's own surface
    wall the step may not cross (added to the step's system only when it would). The elbow's
    flexion stays between the input's and anatomical limits (never past straight).
 4. **In time.** Each frame starts where the last one ended; the prior the steps are damped
-   toward is that correction let go with ``release_s``, which the arms follow out once nothing
-   holds them (at the damped steps' pace, 2-5 % of the correction a frame at 30 fps: slower than
-   ``release_s``, and so slower to let a hand follow the retargeter back into a body). Up to
+   toward is that correction let go with ``release_s``. An arm holding no contact starts from
+   that prior itself where it sinks nothing (settings ``let_go``: exact skeletons); elsewhere the
+   arms follow it out at the damped steps' pace, 2-5 % of the correction a frame at 30 fps. Up to
    _ITERATIONS steps (_DEEP_ITERATIONS while a hand or forearm is still deep inside). The
    correction's change is rate-limited: its elbows and wrists move at most MAX_HAND_SPEED plus
    INPUT_SHARE of the retargeter's own wrist speed, so goals that jump while the hand is still
@@ -282,11 +282,15 @@ class ContactKeeper:
         # wrist speed (the first frame after a reset has no motion to follow: no limit).
         limit = MAX_HAND_SPEED * max(dt, 1e-3) + INPUT_SHARE * moved
         # Warm start from where the last frame ended (starting from the let-go prior instead, a
-        # hand held at a wall bounces: let in a little, pushed out again, every frame).
+        # hand held at a wall bounces: let in a little, pushed out again, every frame), or, for an
+        # arm holding nothing, from the let-go prior where that sinks nothing.
         state = last.copy()
         if state.any():
-            self._apply(glob, loc, pos, arms, state)
-            gaps = self._measure(surface, glob, pos, reach, band)
+            gaps = self._let_go(surface, glob, loc, pos, arms, state, prior, source, holding, reach, band) \
+                if self.settings.let_go else None
+            if gaps is None:
+                self._apply(glob, loc, pos, arms, state)
+                gaps = self._measure(surface, glob, pos, reach, band)
             if RESTART_DEPTH > 0:
                 gaps = self._drop_worse(surface, glob, loc, pos, arms, state, last, gaps, reach, band)
         res, seen = np.zeros(0), Gaps.empty()
@@ -333,6 +337,33 @@ class ContactKeeper:
                  band: np.ndarray) -> Gaps:
         """Every probe set's gaps in this pose, the rows between the hands made one way."""
         return _hands_one_way(measure(surface, glob, pos, ALL_PROBES, reach, self.settings.tau, band))
+
+    def _let_go(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
+                arms: list[_Posed], state: np.ndarray, prior: np.ndarray, source: SourceContacts,
+                holding: np.ndarray, reach: np.ndarray, band: np.ndarray) -> Gaps | None:
+        """An arm that holds no contact starts from its correction let go (``prior``) rather than
+        where the last frame ended, when that puts none of its hand's and forearm's rows below
+        their least gap (``state`` changed in place). The steps alone let a correction go at their
+        damped pace, a few per cent a frame; a clapping hand stayed pushed aside between the claps.
+        Where letting go would sink the arm or bring it too near, it keeps the last frame's
+        correction (let in and pushed out again, a hand would bounce). Returns the gaps measured
+        in the pose it leaves applied, or None when nothing was tried."""
+        free = [a for a in range(2) if state[a].any() and not holding[_ARM_PROBES[a]].any()
+                and not np.array_equal(state[a], prior[a])]
+        if not free:
+            return None
+        trial = state.copy()
+        trial[free] = prior[free]
+        self._apply(glob, loc, pos, arms, trial)
+        gaps = self._measure(surface, glob, pos, reach, band)
+        lower = self.bounds(gaps, source)[0]
+        below = gaps.gap < lower - 1e-5
+        kept = [a for a in free if np.any(below & (_PROBE_ARM[gaps.probe] == a))]
+        state[[a for a in free if a not in kept]] = trial[[a for a in free if a not in kept]]
+        if not kept:
+            return gaps
+        self._apply(glob, loc, pos, arms, state)
+        return None
 
     def _drop_worse(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
                     arms: list[_Posed], state: np.ndarray, last: np.ndarray, gaps: Gaps, reach: np.ndarray,
