@@ -10,7 +10,9 @@ Prints markdown tables (MPJPE / PA-MPJPE mm, PCK@10cm) for docs/results.md: in t
 and after root alignment (the pelvis moved onto the truth's, as real labelled benchmarks score),
 per sensor and body, and on val_real per view condition (posture, extrinsics hidden, something in
 front, a person behind, clothes, close-up, camera pitch and distance: ``sim.skeleton_data.VIEW_KEYS``)
-and per posture with extrinsics given or hidden (``CROSSED``).
+and per posture with extrinsics given or hidden (``CROSSED``), and the views like the real Xtion
+frames' (``like_real_xtion``). Each cell also gives the share of frames whose body is turned more
+than 45 degrees from the truth's (``live.core.metrics.turned_share``).
 """
 
 from __future__ import annotations
@@ -72,7 +74,18 @@ def groups(d: dict, split: str) -> list[tuple[str, np.ndarray]]:
         if key_a in d and key_b in d:
             out += [(f"{name_a}:{a}, {name_b}:{b}", m) for a in np.unique(d[key_a]) for b in np.unique(d[key_b])
                     if (m := (d[key_a] == a) & (d[key_b] == b)).any()]
+    if all(k in d for k in ("posture", "distance", "pitch_deg", "occluder", "closeup", "hidden_extrinsics")):
+        out.append(("views like the real Xtion frames", like_real_xtion(d)))
     return out
+
+
+def like_real_xtion(d: dict) -> np.ndarray:
+    """Samples of val_real seen as ../shared/data/real_depth's Xtion frames see their performer
+    (and as benchmarks of that sensor do): standing or in place, 2-4 m away, the camera level or
+    a little down (pitch -25..5 degrees), nothing in front, not a close-up, extrinsics given."""
+    return (np.isin(d["posture"], ["clip", "in-place"]) & (d["distance"] >= 2.0) & (d["distance"] < 4.0)
+            & (d["pitch_deg"] > -25.0) & (d["pitch_deg"] < 5.0) & ~d["occluder"].astype(bool)
+            & ~d["closeup"].astype(bool) & ~d["hidden_extrinsics"].astype(bool))
 
 
 def predict(model: Path, points: np.ndarray) -> np.ndarray:

@@ -32,3 +32,21 @@ def test_val_real_groups_by_view_condition():
     table = markdown({"val_real": {"m.onnx": {k: scores(np.zeros((1, 22, 3)), np.zeros((1, 22, 3)), np.zeros((1, 1, 3)))
                                               for k in ("all", *g)}}})
     assert "posture:seated" in table and "root-aligned" in table
+
+
+def test_views_like_the_real_xtion_frames_and_the_turned_share():
+    n = 5
+    d = {"camera": np.array(["xtion"] * n), "body": np.array(["a"] * n),
+         "posture": np.array(["clip", "in-place", "seated", "clip", "clip"]),
+         "hidden_extrinsics": np.array([False, False, False, True, False]), "closeup": np.zeros(n, bool),
+         "occluder": np.array([False, False, False, False, True]),
+         "pitch_deg": np.zeros(n), "distance": np.full(n, 3.0)}
+    g = dict(groups(d, "val_real"))
+    assert g["views like the real Xtion frames"].tolist() == [True, True, False, False, False]
+    from live.core.skeleton import default_rest_joints
+
+    gt = np.stack([default_rest_joints()] * 2)
+    facing_away = gt * np.array([-1.0, 1.0, -1.0])  # turned 180 degrees about the vertical
+    s = scores(np.stack([gt[0], facing_away[1]]), gt, np.zeros((2, 1, 3)))
+    assert s["turned_45_share"] == 0.5
+    assert scores(gt[:, :14], gt[:, :14], np.zeros((2, 1, 3)))["turned_45_share"] is None  # not 22 joints
