@@ -345,6 +345,24 @@ def _heavy_avatar_arms_hanging():
     return surface, info, glob, pos, SourceContacts(gap=nothing + 1.0, contact=nothing > 0, weight=nothing)
 
 
+def _arms_turned(glob: np.ndarray, pos: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(globals, joints) of a pose with the arms turned by a correction state (2, 4)."""
+    from live.core.kinematics import local_matrices
+    from live.retarget.contacts_keep import ARMS, ContactKeeper, _Posed
+
+    g, p = glob.copy(), pos.copy()
+    ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
+    return g, p
+
+
+def _left_arm_depth(surface, glob: np.ndarray, pos: np.ndarray) -> float:
+    """How deep (m, 0 when outside) the left hand and forearm are inside the body, as measured."""
+    from live.retarget.contacts_keep import _ARM_PROBES
+
+    gaps = measure(surface, glob, pos, _ARM_PROBES[0], 0.15, 0.003, 0.15)
+    return -gaps.gap.min() if len(gaps.gap) else 0.0
+
+
 def test_a_hand_holding_the_other_forearm_takes_it_along_out_of_the_body():
     """Both arms are one system: the left hand holds the right forearm, both sunk into the heavy
     avatar's belly; pushed out, the hand stays on the forearm (on the avatar's own surface)."""
@@ -539,18 +557,15 @@ def test_an_arm_holding_nothing_lets_its_correction_go_unless_that_sinks_it(outw
     correction holding it out of the belly), the arm stays out, frame after frame, without
     bouncing."""
     from live.core.kinematics import local_matrices
-    from live.retarget.contacts_keep import _ARM_PROBES, ARMS, PUSH_DEPTH, ContactKeeper, _Posed
+    from live.retarget.contacts_keep import ARMS, PUSH_DEPTH, ContactKeeper
 
     surface, info, glob, pos, source = _heavy_avatar_arms_hanging()
 
     def swung(state):  # the pose with the left arm turned by state
-        g, p = glob.copy(), pos.copy()
-        ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
-        return g, p
+        return _arms_turned(glob, pos, state)
 
     def depth_of_left(g, p):
-        gaps = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
-        return -gaps.gap.min() if len(gaps.gap) else 0.0
+        return _left_arm_depth(surface, g, p)
 
     if outward:  # the retargeter's arm hangs clear; the correction holds it turned out
         base, turn = (glob, pos), np.array([[0.0, 0.0, 0.5, 0.0], [0.0] * 4])
@@ -593,18 +608,15 @@ def test_a_strike_into_the_belly_is_pushed_out_on_the_frame_it_lands():
     within PUSH_DEPTH on that frame, and on the next, the arm still there, it stays out."""
     from live.core.kinematics import local_matrices
     from live.retarget import contacts_keep
-    from live.retarget.contacts_keep import _ARM_PROBES, ARMS, PUSH_DEPTH, ContactKeeper, _Posed
+    from live.retarget.contacts_keep import PUSH_DEPTH, ContactKeeper
 
     surface, info, glob, pos, source = _heavy_avatar_arms_hanging()
 
     def swung(state):  # the retargeter's own pose with the left arm turned by state
-        g, p = glob.copy(), pos.copy()
-        ContactKeeper._apply(g, local_matrices(glob), p, [_Posed(glob, pos, arm) for arm in ARMS], state)
-        return g, p
+        return _arms_turned(glob, pos, state)
 
     def depth_of_left(g, p):
-        gaps = measure(surface, g, p, _ARM_PROBES[0], 0.15, 0.003, 0.15)
-        return -gaps.gap.min() if len(gaps.gap) else 0.0
+        return _left_arm_depth(surface, g, p)
 
     strike = next(sw for sw in (swung(np.array([[0.0, 0.0, -a, 0.0], [0.0] * 4])) for a in np.linspace(0.2, 1.4, 25))
                   if depth_of_left(*sw) > 0.09)
