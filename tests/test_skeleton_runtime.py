@@ -158,8 +158,9 @@ def test_evaluate_sessions_compares_both_models(tmp_path):
     assert ours["frames"] == 15 and ours["frames"] - ours["no_skeleton"] >= 10
     assert 0 < ours["mpjpe_mm"] < 150 and ours["pa_mpjpe_mm"] <= ours["mpjpe_mm"]
     assert set(ours["latency_ms"]) == {"p50", "p95", "p99"} and ours["acc_mm_per_frame2"] is not None
+    assert ours["turned_45_share"] <= 0.2  # a clean session from the side: the body read the right way round
     text = format_report(report)
-    assert "MPJPE (mm)" in text and "baseline" in text and "left_wrist" in text
+    assert "MPJPE (mm)" in text and "baseline" in text and "left_wrist" in text and "turned > 45 deg" in text
     assert DEFAULT_MODEL.is_file() and BASELINE_MODEL.is_file()
 
 

@@ -3,7 +3,8 @@
 ``evaluate_sessions(paths)`` replays each session's depth frames through a fresh
 ``SkeletonStage`` (frame by frame, as live) and compares every produced skeleton with the
 ground truth of that frame (the gt channel): MPJPE and PA-MPJPE (mm), per-joint MPJPE,
-PCK@10cm, acceleration error (mm/frame^2, over runs of consecutive frames), stage latency
+PCK@10cm, the share of frames whose body is turned more than 45 degrees from the truth's (read
+facing elsewhere), acceleration error (mm/frame^2, over runs of consecutive frames), stage latency
 p50/p95/p99 (ms), and how many frames had no skeleton. ``compare_baseline=True`` runs the
 reference PointNet (models/weights/skeleton_baseline.onnx) beside the shipped model.
 """
@@ -19,7 +20,7 @@ import numpy as np
 from live.core.depth import between_worlds
 from live.core.errors import UserInputError
 from live.core.frames import DepthFrame, GroundTruth
-from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe, pck, per_joint_mpjpe
+from live.core.metrics import acceleration_error, mpjpe, pa_mpjpe, pck, per_joint_mpjpe, turned_share
 from live.core.report import percentiles
 from live.core.skeleton import JOINT_NAMES
 from models.skeleton.runtime import BASELINE_MODEL, DEFAULT_MODEL, SkeletonStage
@@ -136,6 +137,7 @@ def evaluate_model(sessions: list[EvalSession], model_path: Path, threads: int =
         "mpjpe_mm": round(1000 * mpjpe(pred, gt), 1),
         "pa_mpjpe_mm": round(1000 * pa_mpjpe(pred, gt), 1),
         "pck_10cm": round(pck(pred, gt, 0.1), 4),
+        "turned_45_share": round(turned_share(pred, gt, 45.0), 4),
         "acc_mm_per_frame2": round(1000 * float(np.average(acc, weights=acc_w)), 2) if acc else None,
         "per_joint_mm": {n: round(1000 * float(e), 1) for n, e in zip(JOINT_NAMES, per_joint_mpjpe(pred, gt))},
     })
@@ -165,7 +167,8 @@ def format_report(report: dict) -> str:
     models = report["models"]
     names = list(models)
     rows = [("frames", "frames"), ("no skeleton", "no_skeleton"), ("MPJPE (mm)", "mpjpe_mm"),
-            ("PA-MPJPE (mm)", "pa_mpjpe_mm"), ("PCK@10cm", "pck_10cm"), ("Acc (mm/frame^2)", "acc_mm_per_frame2")]
+            ("PA-MPJPE (mm)", "pa_mpjpe_mm"), ("PCK@10cm", "pck_10cm"), ("turned > 45 deg", "turned_45_share"),
+            ("Acc (mm/frame^2)", "acc_mm_per_frame2")]
     width = max(12, *(len(n) + 2 for n in names))
     lines = [f"{len(report['sessions'])} session(s)", f"{'':<18}" + "".join(f"{n:>{width}}" for n in names)]
     for label, key in rows:
