@@ -39,3 +39,34 @@ def test_every_real_frame_gets_a_skeleton_with_its_upper_body_on_the_body():
             report.append(f"{folder.name}: {int(ok.sum())}/{len(ok)}")
     # The goal, over every real frame: >= 95 % of the upper-body joints on the body.
     assert on_body >= 0.95 * checked, f"{on_body} of {checked} upper-body joints on the body ({', '.join(report)})"
+
+
+ITOP = REAL / "itop_xtion_2frames"
+
+
+@pytest.mark.skipif(not ITOP.is_dir(), reason="no ../shared/data/real_depth/itop_xtion_2frames")
+def test_real_xtion_frames_with_the_camera_pose_given_stand_on_the_floor(tmp_path):
+    """As real labelled benchmarks of this sensor replay it: the camera's pose given (a level camera
+    about 1.2 m above the floor, as the folder's README describes it). The stage solves in that
+    world, the upper body lies on the body, the feet stand near the floor and the head is at a
+    standing adult's height."""
+    import json
+    import shutil
+
+    import numpy as np
+
+    for png in ITOP.glob("*.png"):
+        shutil.copy(png, tmp_path / png.name)
+    given = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV camera, level: x right, y up, looking along -z
+    given[1, 3] = 1.2
+    intrinsics = json.loads((ITOP / "intrinsics.json").read_text())
+    (tmp_path / "intrinsics.json").write_text(json.dumps({**intrinsics, "camera_to_world": given.tolist()}))
+    stage = SkeletonStage()
+    for frame in _frames(tmp_path):
+        skeleton = stage.estimate(frame)
+        assert skeleton is not None
+        np.testing.assert_allclose(skeleton.camera_to_world, given, atol=1e-9)
+        assert on_the_body(skeleton.joints[UPPER_BODY], skeleton.camera_to_world, frame).mean() >= 0.9
+        y = skeleton.joints[:, 1]
+        assert -0.1 < y.min() < 0.25, f"lowest joint {y.min():.2f} m above the given floor"
+        assert 1.3 < y.max() < 2.0, f"highest joint {y.max():.2f} m above the given floor"
