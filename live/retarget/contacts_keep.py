@@ -346,8 +346,9 @@ class ContactKeeper:
         their least gap (``state`` changed in place). The steps alone let a correction go at their
         damped pace, a few per cent a frame; a clapping hand stayed pushed aside between the claps.
         Where letting go would sink the arm or bring it too near, it keeps the last frame's
-        correction (let in and pushed out again, a hand would bounce). Returns the gaps measured
-        in the pose it leaves applied, or None when nothing was tried."""
+        correction (let in and pushed out again, a hand would bounce). Returns the gaps of the
+        pose it leaves applied, or None when ``state`` is still to be applied and measured
+        (nothing tried, or an arm kept)."""
         free = [a for a in range(2) if state[a].any() and not holding[_ARM_PROBES[a]].any()
                 and not np.array_equal(state[a], prior[a])]
         if not free:
@@ -360,10 +361,7 @@ class ContactKeeper:
         below = gaps.gap < lower - 1e-5
         kept = [a for a in free if np.any(below & (_PROBE_ARM[gaps.probe] == a))]
         state[[a for a in free if a not in kept]] = trial[[a for a in free if a not in kept]]
-        if not kept:
-            return gaps
-        self._apply(glob, loc, pos, arms, state)
-        return None
+        return None if kept else gaps
 
     def _drop_worse(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
                     arms: list[_Posed], state: np.ndarray, last: np.ndarray, gaps: Gaps, reach: np.ndarray,
