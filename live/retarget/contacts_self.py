@@ -54,7 +54,8 @@ class ContactSettings:
 #: fusion): from exact skeletons on a fitted template they keep 98.6 % of the hand contacts
 #: against 92.3 %, at 78.7 % precision against 98.6 %. A correction is held between contacts
 #: (``let_go`` off): an estimate's contacts drop out and come back, and on the tuning takes from
-#: depth letting go lost a third of the clapping's kept contacts (all takes 67.6 -> 65.7 %).
+#: depth letting go kept fewer of the clapping's contacts (46 -> 26 % on the child, 26 -> 18 % on
+#: the heavy adult; all takes 67.6 -> 65.7 %).
 ESTIMATED = ContactSettings(on=0.04, off=0.055, reach=0.06, touch=True, let_go=False)
 
 
