@@ -7,7 +7,7 @@ Sequences (48 frames at 30 fps) of the held-out clips and bodies seen as val_rea
 ``sim.sensor_realism``), seed 5, cached under .cache/skeleton_data. The shipped regressor runs on
 every frame the finder found, then each shipped temporal model (online and lag 2) as the stage
 runs it. Per frame: is the body turned more than 45 degrees from the truth's
-(``live.core.metrics.turned_share``)? Prints, for the regressor alone and behind each temporal
+(``live.core.metrics.turned``)? Prints, for the regressor alone and behind each temporal
 model: the share of frames turned, how long the turned runs last (a glitch of a frame or two
 that the history could hold off, or a view read the wrong way throughout), and how many
 sequences are turned on most of their frames; MPJPE / PCK@10cm after root alignment. The
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from live.core import assets
-from live.core.metrics import turned_share
-from live.core.skeleton import JOINT_INDEX as _J
+from live.core.heading import body_heading, wrap_angle
+from live.core.metrics import turned
 
 #: Seed of the held-out realism sequences (val_real's per-frame data uses 3; the clean validation
 #: sequences of the temporal cards 1).
@@ -56,10 +56,8 @@ def realism_sequences(n: int, edge_jump_share: float | None, workers: int) -> di
 
 def turned_frames(world: np.ndarray, truth: np.ndarray, found: np.ndarray) -> np.ndarray:
     """(S, F) bool: found frames whose body is turned more than 45 degrees from the truth's."""
-    out = np.zeros(found.shape, bool)
-    for s, f in zip(*np.nonzero(found)):
-        out[s, f] = turned_share(world[s, f][None], truth[s, f][None], 45.0) > 0.0
-    return out
+    with np.errstate(invalid="ignore"):  # frames not found are NaN
+        return found & turned(world, truth, 45.0)
 
 
 def runs(flags: np.ndarray, found: np.ndarray) -> list[int]:
@@ -114,19 +112,13 @@ class FacingGuard:
 
     def __call__(self, joints: np.ndarray) -> np.ndarray:
         if self._prev is not None:
-            turn = abs((_heading(joints) - _heading(self._prev) + math.pi) % (2 * math.pi) - math.pi)
-            if turn > math.radians(self.max_turn_deg):
+            if abs(wrap_angle(body_heading(joints) - body_heading(self._prev))) > math.radians(self.max_turn_deg):
                 self._run += 1
                 if self._run <= self.max_run:
                     return self._prev + (joints[0] - self._prev[0])
             self._run = 0
         self._prev = joints
         return joints
-
-
-def _heading(joints: np.ndarray) -> float:
-    v = joints[_J["left_hip"]] - joints[_J["right_hip"]] + joints[_J["left_shoulder"]] - joints[_J["right_shoulder"]]
-    return math.atan2(float(v[0]), float(v[2]))
 
 
 def guarded(world: np.ndarray, found: np.ndarray, flips: bool, facing: dict | None) -> np.ndarray:

@@ -121,3 +121,13 @@ def test_turned_share_counts_frames_whose_body_faces_elsewhere():
     assert metrics.turned_share(pred, gt, 45.0) == pytest.approx(0.5)
     assert metrics.turned_share(pred, gt, 100.0) == pytest.approx(0.25)
     assert metrics.turned_share(gt * [1.0, 0.6, 1.0], gt) == 0.0
+
+
+def test_body_heading_is_zero_facing_plus_z_and_follows_a_yaw():
+    from live.core.heading import body_heading, yaw_matrix
+    from live.core.skeleton import default_rest_joints
+
+    rest = default_rest_joints()
+    assert abs(body_heading(rest)) < 1e-9
+    turned = np.stack([rest @ yaw_matrix(a).T for a in (0.5, -2.0)])
+    np.testing.assert_allclose(body_heading(turned), [0.5, -2.0], atol=1e-9)

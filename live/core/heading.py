@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.rotations import axis_matrix
+from live.core.skeleton import JOINT_INDEX as _J
 
 
 def yaw_quat(angle: np.ndarray | float) -> np.ndarray:
@@ -35,6 +36,15 @@ def direction_yaw(d: np.ndarray) -> np.ndarray:
     """Heading (...,) radians of directions (..., 3): the yaw taking +z to their horizontal part."""
     d = np.asarray(d)
     return np.arctan2(d[..., 0], d[..., 2])
+
+
+def body_heading(joints: np.ndarray) -> np.ndarray:
+    """Heading (...,) radians of the way 22-joint bodies (..., 22, 3) face: square to the direction
+    across hips and shoulders (left minus right), so 0 for a body facing +z."""
+    j = np.asarray(joints)
+    a = j[..., _J["left_hip"], :] - j[..., _J["right_hip"], :] + j[..., _J["left_shoulder"], :] \
+        - j[..., _J["right_shoulder"], :]
+    return np.arctan2(-a[..., 2], a[..., 0])
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from live.core.errors import UserInputError
-from live.core.skeleton import JOINT_INDEX as _J
+from live.core.heading import body_heading, wrap_angle
 
 
 def _pair(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -88,16 +88,15 @@ def pck(pred: np.ndarray, gt: np.ndarray, threshold: float = 0.1) -> float:
 
 def turned_share(pred: np.ndarray, gt: np.ndarray, degrees: float = 45.0) -> float:
     """Fraction in [0, 1] of frames whose body is turned more than ``degrees`` about the vertical
-    from the truth's: the heading of (left - right hip) + (left - right shoulder), 22-joint
-    skeletons (T x 22 x 3, y up)."""
+    from the truth's (``live.core.heading.body_heading``), 22-joint skeletons (T x 22 x 3, y up)."""
     pred, gt = _pair(pred, gt)
+    return float(turned(pred, gt, degrees).mean())
 
-    def across(j: np.ndarray) -> np.ndarray:
-        v = j[:, _J["left_hip"]] - j[:, _J["right_hip"]] + j[:, _J["left_shoulder"]] - j[:, _J["right_shoulder"]]
-        return np.arctan2(v[:, 0], v[:, 2])
 
-    turn = (across(pred) - across(gt) + np.pi) % (2 * np.pi) - np.pi
-    return float((np.abs(turn) > np.radians(degrees)).mean())
+def turned(pred: np.ndarray, gt: np.ndarray, degrees: float = 45.0) -> np.ndarray:
+    """(...,) bool: bodies (..., 22, 3) turned more than ``degrees`` about the vertical from the
+    truth's (False where either is NaN)."""
+    return np.abs(wrap_angle(body_heading(pred) - body_heading(gt))) > np.radians(degrees)
 
 
 def acceleration_error(pred: np.ndarray, gt: np.ndarray) -> float:

@@ -359,9 +359,9 @@ class ContactKeeper:
         gaps = self._measure(surface, glob, pos, reach, band)
         lower = self.bounds(gaps, source)[0]
         below = gaps.gap < lower - 1e-5
-        kept = [a for a in free if np.any(below & (_PROBE_ARM[gaps.probe] == a))]
-        state[[a for a in free if a not in kept]] = trial[[a for a in free if a not in kept]]
-        return None if kept else gaps
+        let_go = [a for a in free if not np.any(below & (_PROBE_ARM[gaps.probe] == a))]
+        state[let_go] = trial[let_go]
+        return gaps if len(let_go) == len(free) else None
 
     def _drop_worse(self, surface: BodySurface, glob: np.ndarray, loc: np.ndarray, pos: np.ndarray,
                     arms: list[_Posed], state: np.ndarray, last: np.ndarray, gaps: Gaps, reach: np.ndarray,
