@@ -51,12 +51,12 @@ def told(height: bool, imu: bool, pose: bool):
         state["hidden"] = drawn.hide_extrinsics
         return replace(drawn, hide_extrinsics=False) if pose else drawn
 
-    def finder_find(self, frame):
+    def finder_find(self, frame, **kwargs):
         if height:
             self.ground.camera_height_m = float(state["c2w"][1, 3])
         if imu:
             self.ground.gravity_up = state["c2w"][1, :3].copy()  # world up in camera axes
-        return find(self, frame)
+        return find(self, frame, **kwargs)
 
     data.random_view, realism.random_extras, preprocess.PersonFinder.find = random_view, random_extras, finder_find
     try:

@@ -4,16 +4,17 @@ pick of still clutter giving way to the performer who moves."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from live.core.frames import DepthFrame
 from live.core.rotations import angle_deg
-from live.core.skeleton import default_rest_joints
+from live.core.skeleton import BONES, JOINT_INDEX, default_rest_joints
 from models.skeleton.ground import LEVEL_UP, find_wall
 from models.skeleton.person_clusters import find_person_cluster, plane_share, wall_inliers
 from models.skeleton.preprocess import PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
 from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
-from sim.room import Room, capsule_body
+from sim.room import Room, capsule_body, capsule_mesh, merge_meshes
 
 JOINTS = default_rest_joints(1.75).astype(np.float64)
 
@@ -177,3 +178,62 @@ def test_the_face_of_a_box_is_no_wall():
     assert not wall_inliers(face.astype(np.float32), eye, 0.05, 1.8).any()  # 0.9 m wide: cutting it cut the performer
     assert wall_inliers(wall.astype(np.float32), eye, 0.05, 1.8).mean() > 0.99
 
+
+
+def _still_performer_beside_a_figure(shared_bvh):
+    """Depth frames of a performer holding still 3 m from the camera, and a still figure (a
+    cylinder and a head, 1.9 m) nearer the camera: both pass the finder's person tests and
+    nothing moves, so its size picks the figure."""
+    from live.body.library import load_body
+    from live.motion.rig_mapping import load_motion
+    from sim.synth import CameraPlacement, SyntheticScene
+
+    scene = SyntheticScene.build(load_motion(shared_bvh / "mb_08_07.bvh"), load_body("adult_male_average"),
+                                 placement=CameraPlacement(3.0, 1.3, 0.0, 0.1), seed=1)
+    c2w = scene.camera.camera_to_world
+    toward = (c2w[:3, 3] - [0.0, c2w[1, 3], 0.0]) / np.hypot(c2w[0, 3], c2w[2, 3])  # on the floor, to the camera
+    side = np.cross([0.0, 1.0, 0.0], toward)
+    at = 1.2 * toward - 1.0 * side
+    figure = merge_meshes([capsule_mesh(at + [0.0, 0.3, 0.0], at + [0.0, 1.45, 0.0], 0.22),
+                           capsule_mesh(at + [0.0, 1.72, 0.0], at + [0.0, 1.76, 0.0], 0.12)])
+    body = scene.vertices(40)
+    verts = np.concatenate([body, figure[0]])
+    faces = np.concatenate([np.asarray(scene.body.faces), figure[1] + len(body)])
+    pelvis = scene.joints[40, 0]
+    frames = [DepthFrame(t_ns=1_000_000_000 + k * 33_333_333, sensor="cam", camera_to_world=c2w,
+                         depth_mm=scene.camera.render(verts, faces, room=scene.room), intrinsics=scene.camera.intrinsics)
+              for k in range(4)]
+    return frames, pelvis
+
+
+def test_the_stage_does_not_take_a_still_figure_that_fits_no_skeleton(shared_bvh):
+    from models.skeleton.body_fit import body_fit
+    from models.skeleton.runtime import SkeletonStage
+
+    frames, pelvis = _still_performer_beside_a_figure(shared_bvh)
+    finder = PersonFinder()
+    alone = [finder.find(f) for f in frames]
+    assert all(np.hypot(*(c.to_world[[0, 2], 3] - pelvis[[0, 2]])) > 1.0 for c in alone)  # the figure
+    stage = SkeletonStage(temporal=False)
+    for f in frames:
+        skeleton = stage.estimate(f)
+        assert np.hypot(*(skeleton.joints[0, [0, 2]] - pelvis[[0, 2]])) < 0.2
+    assert stage.finder.counters.body_switches >= 1
+    # Why: the figure's sample lies far from the bones of the skeleton regressed from it.
+    cloud = alone[0]
+    assert body_fit(stage.regressor(cloud.points), cloud.points) > 0.14
+    assert body_fit(stage.regressor(stage.last_cloud.points), stage.last_cloud.points) < 0.12
+
+
+def test_body_fit_is_the_mean_distance_to_the_nearest_bone():
+    from models.skeleton.body_fit import body_fit, bone_distances
+
+    joints = JOINTS
+    on_bones = np.array([(joints[c] + joints[p]) / 2 for p, c in BONES])
+    assert np.allclose(bone_distances(joints, on_bones), 0.0, atol=1e-9)
+    # 30 cm beyond the head along its bone, and a point on a bone.
+    head, neck = joints[JOINT_INDEX["head"]], joints[JOINT_INDEX["neck"]]
+    off = np.array([head + 0.3 * (head - neck) / np.linalg.norm(head - neck), on_bones[0]])
+    assert np.allclose(bone_distances(joints, off), [0.3, 0.0], atol=1e-9)
+    assert body_fit(joints, off, every=1) == pytest.approx(0.15)
+    assert body_fit(joints, np.repeat(off, 4, axis=0)) == pytest.approx(0.15)  # every 4th point

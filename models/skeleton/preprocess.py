@@ -19,6 +19,7 @@ Settings: ``preprocess_config.PreprocessConfig``.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -87,6 +88,8 @@ class FinderCounters:
     up_source_changes: int = 0
     tracked: int = 0  # frames searched only around the previous person
     full_searches: int = 0  # frames searched over the whole image (first, periodic, lost or cut)
+    body_checks: int = 0  # picks that fit a skeleton badly, weighed against the rest of the image
+    body_switches: int = 0  # ... where another cluster fitted better and was taken
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,18 @@ class _Search:
         """The person's rows r0..r1 and cols c0..c1 (inclusive) in the strided image."""
         rows, cols = self.person_pixels // self.width, self.person_pixels % self.width
         return int(rows.min()), int(rows.max()), int(cols.min()), int(cols.max())
+
+
+@dataclass(frozen=True)
+class _Pick:
+    """A candidate person of one frame: its cloud, its world points (3, P) at the floor it was
+    placed on, their median (x, z), and without a floor in view the camera height it was placed
+    at (else None)."""
+
+    cloud: PersonCloud
+    person: np.ndarray
+    center: np.ndarray
+    height_est: float | None
 
 
 @dataclass
@@ -269,8 +284,16 @@ class PersonFinder:
             cached = self._rays[s] = key, np.ascontiguousarray(c2w[:3, :3] @ d.reshape(3, -1), np.float32)
         return cached[1]
 
-    def find(self, frame: DepthFrame) -> PersonCloud | None:
-        """The person in ``frame`` as a normalised sample, or None when nobody is in view."""
+    def find(self, frame: DepthFrame, judge: Callable[[PersonCloud], float] | None = None) -> PersonCloud | None:
+        """The person in ``frame`` as a normalised sample, or None when nobody is in view.
+
+        judge: how badly a cloud fits a skeleton (metres, lower is better: the skeleton stage's
+        regressor and ``body_fit``), or None. Until the tracked person has been seen moving, a
+        pick that fits worse than ``body_check_m`` is weighed against the best cluster of the rest
+        of the image, which is taken when it fits within ``body_fit_m``, better by
+        ``body_fit_margin_m``, stands at least ``body_min_height_m`` tall and has at least
+        ``body_min_share`` of the pick's points: a still figure, shelf or sofa picked before the
+        performer has moved is not a body."""
         cfg = self.config
         self.counters.frames += 1
         coarse = (cfg.coarse_stride is not None and frame.depth_mm is not None
@@ -298,23 +321,35 @@ class PersonFinder:
             self._track = None
             self._track_moved = False
             return None
-        c2w = found.c2w
-        person = found.person
+        pick = self._candidate(frame, found, s, coarse, scale)
+        if (judge is not None and cfg.body_check_m is not None and not self._track_moved
+                and found.pixels is not None):
+            fit = judge(pick.cloud)
+            if fit > cfg.body_check_m:
+                self.counters.body_checks += 1
+                other = self._search(frame, s, c2w, None, depths, min_points, leave_out=found.person_pixels)
+                if other is not None:
+                    other_pick = self._candidate(frame, other, s, coarse, scale)
+                    other_fit = judge(other_pick.cloud)
+                    if (other_fit <= cfg.body_fit_m and other_fit < fit - cfg.body_fit_margin_m
+                            and other_pick.cloud.height_m >= cfg.body_min_height_m
+                            and other_pick.cloud.count >= cfg.body_min_share * pick.cloud.count):
+                        self.counters.body_switches += 1
+                        found, pick = other, other_pick
+        self._commit(frame, found, pick, whole_image, s)
+        self.counters.found += 1
+        return pick.cloud
+
+    def _candidate(self, frame: DepthFrame, found: _Search, s: int, coarse: bool, scale: float) -> _Pick:
+        """The cloud of a search's person; the finder's state is left as it was."""
+        cfg = self.config
+        c2w, person, height_est = found.c2w, found.person, None
         if self._no_floor:
-            c2w, person = self._place_floor(frame.t_ns, found)
+            c2w, person, height_est = self._floor_placed(found)
         center = np.array([_median(person[0]), _median(person[2])], np.float64)
-        same = (self._last_center is not None and cfg.track_margin_m is not None
-                and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
-        moved = found.moved_share is not None and found.moved_share > cfg.motion_noise_share
-        self._track_moved = moved or (same and self._track_moved)
-        if whole_image:  # a window only once a whole-image search agrees with the frame before
-            self._confirmed = same and self._track_moved
-        self._last_center = center
         to_world = _person_frame(center, c2w[:3, 3])
         rng = np.random.default_rng(frame.t_ns & 0xFFFFFFFF)
         n = cfg.num_points
-        if found.pixels is not None:
-            self._remember(found, s)
         if coarse:
             fs = cfg.pixel_stride
             rays = self._world_rays(frame.intrinsics, frame.depth_mm[::fs, ::fs].shape, c2w, fs)
@@ -323,37 +358,55 @@ class PersonFinder:
         else:
             pts = np.take(person, rng.choice(person.shape[1], n, replace=person.shape[1] < n), axis=1).T
         local = (pts - to_world[:3, 3].astype(np.float32)) @ to_world[:3, :3].astype(np.float32)
-        self.counters.found += 1
-        return PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
-                           count=int(person.shape[1] * scale), height_m=float(person[1].max()),
-                           camera_to_world=c2w)
+        cloud = PersonCloud(points=np.ascontiguousarray(local, np.float32), to_world=to_world,
+                            count=int(person.shape[1] * scale), height_m=float(person[1].max()),
+                            camera_to_world=c2w)
+        return _Pick(cloud, person, center, height_est)
 
-    def _place_floor(self, t_ns: int, found: _Search) -> tuple[np.ndarray, np.ndarray]:
+    def _commit(self, frame: DepthFrame, found: _Search, pick: _Pick, whole_image: bool, s: int) -> None:
+        """Track the person taken: their position, whether they moved, their window, and without a
+        floor in view the camera height and the body's up."""
+        cfg = self.config
+        if pick.height_est is not None:
+            self._height_est = pick.height_est
+            if self.ground.gravity_up is None:
+                axis = body_up(pick.person.T, np.array([0.0, 1.0, 0.0]))
+                if axis is not None:
+                    self.ground.refine_with_body(frame.t_ns, pick.cloud.camera_to_world[:3, :3].T @ axis)
+        center = pick.center
+        same = (self._last_center is not None and cfg.track_margin_m is not None
+                and float(np.hypot(*(center - self._last_center))) < cfg.track_margin_m)
+        moved = found.moved_share is not None and found.moved_share > cfg.motion_noise_share
+        self._track_moved = moved or (same and self._track_moved)
+        if whole_image:  # a window only once a whole-image search agrees with the frame before
+            self._confirmed = same and self._track_moved
+        self._last_center = center
+        if found.pixels is not None:
+            self._remember(found, s)
+
+    def _floor_placed(self, found: _Search) -> tuple[np.ndarray, np.ndarray, float]:
         """No floor in view: the floor at the given camera height (with the IMU's up), else under
-        the performer (``floor_under_person``, smoothed over frames), and their vertical axis
-        refining a level camera's up. Returns the frame's camera_to_world and the person's points
-        (3, P) at that floor."""
+        the performer (``floor_under_person``, smoothed over frames). Returns the frame's
+        camera_to_world, the person's points (3, P) at that floor and the camera height."""
         person = found.person
         given = self.ground.known_height
         if given is not None:
-            self._height_est = float(given)
+            height_est = float(given)
         else:
             y_low, y_top = (float(v) for v in np.quantile(person[1], (0.01, 0.99)))
             height = float(found.c2w[1, 3]) - floor_under_person(y_low, y_top, found.cut_below)
-            self._height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
+            height_est = height if self._height_est is None else 0.9 * self._height_est + 0.1 * height
         c2w = found.c2w.copy()
-        c2w[1, 3] = self._height_est
+        c2w[1, 3] = height_est
         person = person.copy()
-        person[1] += np.float32(self._height_est - found.c2w[1, 3])
-        if self.ground.gravity_up is None:
-            axis = body_up(person.T, np.array([0.0, 1.0, 0.0]))
-            if axis is not None:
-                self.ground.refine_with_body(t_ns, c2w[:3, :3].T @ axis)
-        return c2w, person
+        person[1] += np.float32(height_est - found.c2w[1, 3])
+        return c2w, person, height_est
 
     def _search(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None,
-                depths: tuple[np.ndarray, np.ndarray] | None, min_points: int) -> _Search | None:
-        """The person among the points of ``roi`` (or of the whole image), or None."""
+                depths: tuple[np.ndarray, np.ndarray] | None, min_points: int,
+                leave_out: np.ndarray | None = None) -> _Search | None:
+        """The person among the points of ``roi`` (or of the whole image), or None; leave_out:
+        flat pixels of the strided image not to search (another candidate's)."""
         world, pixels = self._world(frame, s, c2w, roi)
         if self._no_floor and world.shape[1]:
             # No floor: lift the lowest points to it, so that everything in view is above it;
@@ -363,6 +416,8 @@ class PersonFinder:
             c2w = c2w.copy()
             c2w[1, 3] += lift
         above = np.flatnonzero(world[1] > self.config.floor_margin_m)
+        if leave_out is not None:
+            above = above[~np.isin(pixels[above], leave_out)]
         moving = None
         if depths is not None and pixels is not None:
             moving = self._moved(depths, pixels[above])

@@ -22,6 +22,7 @@ from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import DepthFrame, FrameResult, SkeletonFrame
 from live.core.gravity import GravityEstimator, camera_imu_sample
+from models.skeleton.body_fit import body_fit
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder
 from models.skeleton.preprocess_config import PreprocessConfig
@@ -196,12 +197,16 @@ class SkeletonStage:
             self.reset()
             self._counters.resets += 1
             self._last_t = None
-        cloud = self.finder.find(frame)
+        judged: list[tuple[PersonCloud, np.ndarray]] = []
+        cloud = self.finder.find(frame, judge=lambda c: self._body_fit(c, judged))
         self.last_cloud = cloud
         if cloud is None:
             self._counters.nobody += 1
             return None
-        local = self.regressor(cloud.points).astype(np.float64)
+        local = next((j for c, j in judged if c is cloud), None)
+        if local is None:
+            local = self.regressor(cloud.points)
+        local = local.astype(np.float64)
         support = joint_confidence(local, cloud.points)
         rot, trans = cloud.to_world[:3, :3], cloud.to_world[:3, 3]
         joints = local @ rot.T + trans
@@ -218,6 +223,13 @@ class SkeletonStage:
                 return None
             t_ns, joints, support = refined.t_ns, refined.joints, refined.confidence
         return self._finish(t_ns, joints, support, frame)
+
+    def _body_fit(self, cloud: PersonCloud, judged: list) -> float:
+        """The finder's body check: how far the cloud lies from the bones of its regressed
+        skeleton (the skeleton kept in ``judged``, so the cloud taken is not regressed twice)."""
+        joints = self.regressor(cloud.points)
+        judged.append((cloud, joints))
+        return body_fit(joints, cloud.points)
 
     def _camera_to_world_of(self, t_ns: int) -> np.ndarray | None:
         """The camera_to_world the frame of time ``t_ns`` was solved in (a lagging model's
