@@ -324,21 +324,32 @@ class PersonFinder:
         pick = self._candidate(frame, found, s, coarse, scale)
         if (judge is not None and cfg.body_check_m is not None and not self._track_moved
                 and found.pixels is not None):
-            fit = judge(pick.cloud)
-            if fit > cfg.body_check_m:
-                self.counters.body_checks += 1
-                other = self._search(frame, s, c2w, None, depths, min_points, leave_out=found.person_pixels)
-                if other is not None:
-                    other_pick = self._candidate(frame, other, s, coarse, scale)
-                    other_fit = judge(other_pick.cloud)
-                    if (other_fit <= cfg.body_fit_m and other_fit < fit - cfg.body_fit_margin_m
-                            and other_pick.cloud.height_m >= cfg.body_min_height_m
-                            and other_pick.cloud.count >= cfg.body_min_share * pick.cloud.count):
-                        self.counters.body_switches += 1
-                        found, pick = other, other_pick
+            found, pick = self._body_check(frame, found, pick, judge, s, c2w, depths, min_points, coarse, scale)
         self._commit(frame, found, pick, whole_image, s)
         self.counters.found += 1
         return pick.cloud
+
+    def _body_check(self, frame: DepthFrame, found: _Search, pick: _Pick, judge: Callable[[PersonCloud], float],
+                    s: int, c2w: np.ndarray, depths: tuple[np.ndarray, np.ndarray] | None, min_points: int,
+                    coarse: bool, scale: float) -> tuple[_Search, _Pick]:
+        """The pick, or the best cluster of the rest of the image where the pick fits no skeleton
+        and that one does (``find``'s judge)."""
+        cfg = self.config
+        fit = judge(pick.cloud)
+        if fit <= cfg.body_check_m:
+            return found, pick
+        self.counters.body_checks += 1
+        other = self._search(frame, s, c2w, None, depths, min_points, leave_out=found.person_pixels)
+        if other is None:
+            return found, pick
+        other_pick = self._candidate(frame, other, s, coarse, scale)
+        other_fit = judge(other_pick.cloud)
+        if (other_fit <= cfg.body_fit_m and other_fit < fit - cfg.body_fit_margin_m
+                and other_pick.cloud.height_m >= cfg.body_min_height_m
+                and other_pick.cloud.count >= cfg.body_min_share * pick.cloud.count):
+            self.counters.body_switches += 1
+            return other, other_pick
+        return found, pick
 
     def _candidate(self, frame: DepthFrame, found: _Search, s: int, coarse: bool, scale: float) -> _Pick:
         """The cloud of a search's person; the finder's state is left as it was."""
