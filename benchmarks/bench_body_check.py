@@ -6,7 +6,7 @@ The body check (docs/skeleton.md, "Body check") runs until the tracked person ha
 moving: every frame of the finder bench's held-out sessions (``benchmarks/bench_finder.py``, whose
 cache it reads: performers on the spot, seated and crouching, many never moving enough to be
 seen moving, from hard heights and pitches) goes through two stages in turn, frame by frame in
-one process, one with the check and one without (``PreprocessConfig(body_check_m=None)``).
+one process, one with the check and one without (``SkeletonStage(body_check=False)``).
 Prints the share of frames checked and each stage's median and p95 per frame (each session's
 first frame left out, as bench_finder does) with their ratios.
 """
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +27,6 @@ def main(argv: list[str] | None = None) -> int:
     import bench_finder
 
     from live.evaluation.skeleton import session_frames
-    from models.skeleton.preprocess import PersonFinder
     from models.skeleton.runtime import SkeletonStage
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -36,15 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     specs, _ = bench_finder.plan(args.quick)
     bench_finder.generate(specs, workers=1)
-    variants = {"without the check": {"body_check_m": None}, "with the check": {}}
+    variants = {"without the check": False, "with the check": True}
     times: dict[str, list[float]] = {k: [] for k in variants}
     checks = frames = 0
     for n, spec in enumerate(specs):
-        stages = {}
-        for name, change in variants.items():
-            stage = SkeletonStage()
-            stage.finder = PersonFinder(replace(stage.regressor.preprocess_config(), **change))
-            stages[name] = stage
+        stages = {name: SkeletonStage(body_check=on) for name, on in variants.items()}
         for i, (depth, _) in enumerate(session_frames(spec.path)):
             frames += 1
             for name, stage in stages.items():

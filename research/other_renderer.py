@@ -1,7 +1,8 @@
 """Depth from another renderer: the skeleton stage judged on depth it did not make.
 
     python -m research.other_renderer [--cases 32] [--frames 16] [--seed 0] [--models A.onnx ...]
-        [--lag 2] [--temporal T.onnx ...] [--json FILE] [--figure FILE (seed 0: docs/img/other_renderer.png)]
+        [--lag 2] [--temporal T.onnx ...] [--without-body-check] [--json FILE]
+        [--figure FILE (seed 0: docs/img/other_renderer.png)]
         [--replay-check 1]
 
 Held-out content only: CMU clips of the held-out subjects and the held-out bodies
@@ -389,6 +390,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--lag", type=int, default=0, help="the stage's temporal model of this lag (0: online)")
     ap.add_argument("--temporal", type=Path, nargs="+", default=[],
                     help="other temporal models (.onnx) also run behind the first skeleton model, as more rows")
+    ap.add_argument("--without-body-check", action="store_true",
+                    help="also the first model's stage without its body check, as more rows")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--figure", type=Path, default=None,
                     help="where to draw six cases (default: the docs' figure for seed 0, the cache for tuning seeds)")
@@ -410,6 +413,9 @@ def main(argv: list[str] | None = None) -> dict:
                     ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
         if model == models[0]:
             variants += [("stage", f"{model.name} + {t.parent.name}/{t.name}", {"temporal": t}) for t in args.temporal]
+            if args.without_body_check:
+                variants.append(("stage", f"{model.name} without the body check",
+                                 {"body_check": False, **({"lag": args.lag} if args.lag else {})}))
         stage_labels += [label for variant, label, _ in variants if variant == "stage"]
         for variant, label, options in variants:
             solved = [solve(folder_frames(folder), data["joints"], data["camera_to_world"], model, **options)

@@ -112,7 +112,10 @@ class SkeletonStage:
     left/right label flips. reset_after_s: forget the performer after this long without one.
     camera_height_m: the camera's height above the floor, for depth without a camera pose when
     the floor is not in view, used once the camera's IMU gives up (else the floor is guessed
-    under the performer: a standing person's, wrong for one seated at a desk; docs/skeleton.md)."""
+    under the performer: a standing person's, wrong for one seated at a desk; docs/skeleton.md).
+    body_check: until the performer has been seen moving, weigh a pick that fits its regressed
+    skeleton badly against the rest of the image (``PersonFinder.find``'s judge; docs/skeleton.md,
+    "Body check")."""
 
     name = "skeleton"
 
@@ -120,7 +123,7 @@ class SkeletonStage:
                  finder: PersonFinder | None = None, temporal: bool | str | Path = True, lag: int = 0,
                  min_cutoff: float = 1.5, beta: float = 3.0,
                  filter: bool | None = None, keep_bones: bool = False, flip_guard: bool = True,
-                 reset_after_s: float = 0.5, camera_height_m: float | None = None):
+                 reset_after_s: float = 0.5, camera_height_m: float | None = None, body_check: bool = True):
         self.regressor = SkeletonRegressor(model_path, threads)
         self.temporal = _open_temporal(temporal, self.regressor.path, threads, int(lag))
         self.lag_s = 0.0 if self.temporal is None else self.temporal.lag_s  # latency the model adds
@@ -132,6 +135,7 @@ class SkeletonStage:
         # only add lag, so by default it runs only without one.
         self.use_filter = self.temporal is None if filter is None else bool(filter)
         self.keep_bones, self.use_flip_guard = keep_bones, flip_guard
+        self.body_check = bool(body_check)
         self.reset_after_ns = int(reset_after_s * 1e9)
         self._counters = StageCounters()
         self.last_cloud: PersonCloud | None = None
@@ -198,7 +202,7 @@ class SkeletonStage:
             self._counters.resets += 1
             self._last_t = None
         judged: list[tuple[PersonCloud, np.ndarray]] = []
-        cloud = self.finder.find(frame, judge=lambda c: self._body_fit(c, judged))
+        cloud = self.finder.find(frame, judge=(lambda c: self._body_fit(c, judged)) if self.body_check else None)
         self.last_cloud = cloud
         if cloud is None:
             self._counters.nobody += 1
