@@ -408,14 +408,15 @@ def main(argv: list[str] | None = None) -> dict:
     per_case: dict = {}
     checks: dict = {}
     stage_labels: list[str] = []
+    lag = {"lag": args.lag} if args.lag else {}
     for model in models:
-        variants = [("stage", model.name, {"lag": args.lag} if args.lag else {}),
+        variants = [("stage", model.name, lag),
                     ("per-frame", f"{model.name} per-frame", {"temporal": False, "filter": False})]
         if model == models[0]:
             variants += [("stage", f"{model.name} + {t.parent.name}/{t.name}", {"temporal": t}) for t in args.temporal]
             if args.without_body_check:
                 variants.append(("stage", f"{model.name} without the body check",
-                                 {"body_check": False, **({"lag": args.lag} if args.lag else {})}))
+                                 {"body_check": False, **lag}))
         stage_labels += [label for variant, label, _ in variants if variant == "stage"]
         for variant, label, options in variants:
             solved = [solve(folder_frames(folder), data["joints"], data["camera_to_world"], model, **options)

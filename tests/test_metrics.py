@@ -131,3 +131,14 @@ def test_body_heading_is_zero_facing_plus_z_and_follows_a_yaw():
     assert abs(body_heading(rest)) < 1e-9
     turned = np.stack([rest @ yaw_matrix(a).T for a in (0.5, -2.0)])
     np.testing.assert_allclose(body_heading(turned), [0.5, -2.0], atol=1e-9)
+
+
+def test_segment_distances_paired_and_all_against_all():
+    from live.core.geometry import segment_distances
+
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    p = np.array([[0.5, 0.2, 0.0], [-0.3, 0.0, 0.4], [1.0, 0.0, 0.0]])
+    assert np.allclose(segment_distances(p, a, b), [0.2, 0.5, 0.0])  # along, beyond an end, at an end
+    segs_a, segs_b = np.stack([a, a]), np.stack([b, [0.0, 1.0, 0.0]])
+    d = segment_distances(p[:, None], segs_a[None], segs_b[None])
+    assert d.shape == (3, 2) and np.isclose(d[0, 1], np.hypot(0.5, 0.0)) and np.isclose(d[1, 1], 0.5)

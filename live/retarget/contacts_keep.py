@@ -51,6 +51,7 @@ from dataclasses import replace
 import numpy as np
 
 from live.core import vec3 as v3
+from live.core.geometry import segment_distances
 from live.core.rotations import skew
 from live.core.skeleton import PARENTS
 from live.retarget.analytic import LIMBS
@@ -428,7 +429,7 @@ class ContactKeeper:
         per_arm = np.array([[arms[a].s, posed[a][2], posed[a][3], posed[a][4]] for a in range(2)])[arm_of]
         s, e, w, n = per_arm[:, 0], per_arm[:, 1], per_arm[:, 2], per_arm[:, 3]
         p = np.where(hand[:, None], w, points)
-        upper = _segment_distance(p, s, e) < _segment_distance(p, e, w)
+        upper = segment_distances(p, s, e) < segment_distances(p, e, w)
         about_elbow = np.where(upper[:, None] & ~hand[:, None], 0.0, p - e)
         return p - s, about_elbow, n
 
@@ -620,14 +621,6 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross products of (K, 3) arrays (np.cross costs ten times more on a few rows)."""
     return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
                      a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
-
-
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(K,) distances of points p (K, 3) to segments a-b (K, 3 each)."""
-    ab = b - a
-    t = np.clip(np.einsum("ki,ki->k", p - a, ab) / np.maximum(np.einsum("ki,ki->k", ab, ab), 1e-12), 0.0, 1.0)
-    d = p - a - t[:, None] * ab
-    return np.sqrt(np.einsum("ki,ki->k", d, d))
 
 
 def _add_rows(jac: np.ndarray, arm_of: np.ndarray, about_shoulder: np.ndarray, about_elbow: np.ndarray,

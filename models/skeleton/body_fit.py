@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from live.core.geometry import segment_distances
 from live.core.skeleton import BONES
 
 _PARENT = np.array([parent for parent, _ in BONES])
@@ -19,10 +20,7 @@ def bone_distances(joints: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(N,) distance (m) of each point (N, 3) to the nearest bone segment of joints (22, 3)."""
     j = np.asarray(joints, np.float64)
     p = np.asarray(points, np.float64)
-    a, ab = j[_PARENT], j[_CHILD] - j[_PARENT]
-    ap = p[:, None, :] - a[None]
-    t = np.clip((ap * ab[None]).sum(axis=2) / np.maximum((ab * ab).sum(axis=1), 1e-12)[None], 0.0, 1.0)
-    return np.linalg.norm(ap - t[..., None] * ab[None], axis=2).min(axis=1)
+    return segment_distances(p[:, None], j[_PARENT][None], j[_CHILD][None]).min(axis=1)
 
 
 def body_fit(joints: np.ndarray, points: np.ndarray, every: int = 4) -> float:
