@@ -28,6 +28,8 @@ class RunOptions:
     lag: int = 0
     #: The camera's height above the floor (m), for depth without a camera pose and no floor in view.
     camera_height: float | None = None
+    #: Check a camera pose the depth carries against the floor and walls in view (else taken as is).
+    check_extrinsics: bool = True
     vmc: str | None = None
     vmc_rate: float = 60.0
     vmc_mtu: int | None = None
@@ -74,7 +76,7 @@ def build(opts: RunOptions) -> tuple[list, list, dict]:
         from models.skeleton.runtime import SkeletonStage
 
         stages.append(SkeletonStage(model_path=model, threads=opts.threads, lag=opts.lag,
-                                    camera_height_m=opts.camera_height))
+                                    camera_height_m=opts.camera_height, check_extrinsics=opts.check_extrinsics))
         parts["skeleton"] = stages[-1]
     elif opts.lag:
         raise UserInputError("--lag needs the skeleton model (models/weights/skeleton.onnx)")

@@ -64,6 +64,10 @@ def _add_output_options(p: argparse.ArgumentParser, avatar_default: str | None =
                    "when the floor is not in view (a performer seated at a desk); used once the camera's IMU "
                    "gives up (an OAK streams it): otherwise the floor is guessed under the performer, for a "
                    "standing person")
+    p.add_argument("--trust-extrinsics", action="store_true",
+                   help="take a camera pose the depth carries as it is; by default it is checked against the floor "
+                   "and walls in view and, where it is off by more than a few degrees or centimetres, the body is "
+                   "solved in the room's up (the skeleton is reported in the given world either way)")
     p.add_argument("--vmc", default=None, metavar="HOST:PORT", help="send the avatar over the VMC protocol "
                    "(e.g. 127.0.0.1:39539); off unless given")
     p.add_argument("--vmc-rate", type=arg.vmc_rate, default=60.0, help="VMC send-rate limit in Hz (0 = every frame)")

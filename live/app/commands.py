@@ -26,6 +26,7 @@ def _run_options(args, out: Path, video: Path | None = None, sources=()):
                       hand_ik=args.hand_ik, model=args.model, threads=args.threads, lag=args.lag, vmc=args.vmc,
                       contacts=getattr(args, "contacts", None) or "auto",
                       camera_height=getattr(args, "camera_height", None),
+                      check_extrinsics=not getattr(args, "trust_extrinsics", False),
                       vmc_rate=args.vmc_rate, vmc_mtu=getattr(args, "vmc_mtu", None), viewer=args.viewer, video=video or args.video,
                       bvh_names=getattr(args, "bvh_names", "avatar"))
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -194,17 +194,19 @@ class PersonFinder:
         provisional until the performer is found (``_no_floor``)."""
         c2w = np.asarray(frame.camera_to_world, np.float64)
         ground = self.ground
-        if not _is_identity(c2w):
-            ground.use_given(frame.t_ns)
+        fs = self._floor_stride(frame, s)
+        finer = None if fs == s else (lambda: self._camera_points(frame, fs))
+        points = self._camera_points(frame, s) if ground.due(frame.t_ns) else None
+        given = not _is_identity(c2w)
+        if given:
+            ground.check_given(frame.t_ns, c2w, points, finer)
         else:
-            fs = self._floor_stride(frame, s)
-            finer = None if fs == s else (lambda: self._camera_points(frame, fs))
-            ground.update(frame.t_ns, self._camera_points(frame, s) if ground.due(frame.t_ns) else None, finer)
+            ground.update(frame.t_ns, points, finer)
             if not ground.floor_seen:
                 self.counters.no_floor += 1
         self.counters.floor_searches = ground.searches
         self.counters.up_source_changes = len(ground.changes)
-        return c2w if ground.source == "given" else ground.camera_to_world(0.0)
+        return ground.room_from_given(c2w) if given else ground.camera_to_world(0.0)
 
     def _floor_stride(self, frame: DepthFrame, s: int) -> int:
         """The stride the floor is searched on again when ``s`` shows none: ``s``, or a finer one
@@ -219,10 +221,11 @@ class PersonFinder:
 
     @property
     def _no_floor(self) -> bool:
-        """No extrinsics and no floor in view. The search then lifts the lowest points to the
-        floor whatever up is (a given camera height with a wrong up would sink the performer
-        into it: lost or found on clutter), and the floor is placed once they are found."""
-        return self.ground.source != "given" and not self.ground.floor_seen
+        """No floor to stand on (``GroundEstimator.floor_unknown``). The search then lifts the
+        lowest points to the floor whatever up is (a given camera height with a wrong up would
+        sink the performer into it: lost or found on clutter), and the floor is placed once they
+        are found."""
+        return self.ground.floor_unknown
 
     def _world(self, frame: DepthFrame, s: int, c2w: np.ndarray, roi: tuple[int, int, int, int] | None = None
                ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -327,7 +330,17 @@ class PersonFinder:
             found, pick = self._body_check(frame, found, pick, judge, s, c2w, depths, min_points, coarse, scale)
         self._commit(frame, found, pick, whole_image, s)
         self.counters.found += 1
-        return pick.cloud
+        return self._in_given_world(frame, pick.cloud)
+
+    def _in_given_world(self, frame: DepthFrame, cloud: PersonCloud) -> PersonCloud:
+        """A cloud solved in the room's world (given extrinsics turned to the room's up), its
+        frame expressed in the given world through the camera: the skeleton comes out in the
+        user's own world."""
+        if self.ground.given_fix is None or _is_identity(np.asarray(frame.camera_to_world, np.float64)):
+            return cloud
+        given = np.asarray(frame.camera_to_world, np.float64)
+        return replace(cloud, to_world=given @ np.linalg.solve(cloud.camera_to_world, cloud.to_world),
+                       camera_to_world=given)
 
     def _body_check(self, frame: DepthFrame, found: _Search, pick: _Pick, judge: Callable[[PersonCloud], float],
                     s: int, c2w: np.ndarray, depths: tuple[np.ndarray, np.ndarray] | None, min_points: int,

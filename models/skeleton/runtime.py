@@ -22,6 +22,7 @@ from live.core import assets
 from live.core.errors import ModelError, UserInputError
 from live.core.frames import DepthFrame, FrameResult, SkeletonFrame
 from live.core.gravity import GravityEstimator, camera_imu_sample
+from live.core.rotations import angle_deg
 from models.skeleton.body_fit import body_fit
 from models.skeleton.filters import BoneLengthKeeper, FlipGuard, OneEuroFilter, joint_confidence
 from models.skeleton.preprocess import PersonCloud, PersonFinder
@@ -115,7 +116,9 @@ class SkeletonStage:
     under the performer: a standing person's, wrong for one seated at a desk; docs/skeleton.md).
     body_check: until the performer has been seen moving, weigh a pick that fits its regressed
     skeleton badly against the rest of the image (``PersonFinder.find``'s judge; docs/skeleton.md,
-    "Body check")."""
+    "Body check"). check_extrinsics: check a given camera pose against the floor or the walls in
+    view and solve in the room's up where it is off (``GroundEstimator.check_given``; the
+    skeleton is reported in the given world either way); False takes it as given."""
 
     name = "skeleton"
 
@@ -123,13 +126,15 @@ class SkeletonStage:
                  finder: PersonFinder | None = None, temporal: bool | str | Path = True, lag: int = 0,
                  min_cutoff: float = 1.5, beta: float = 3.0,
                  filter: bool | None = None, keep_bones: bool = False, flip_guard: bool = True,
-                 reset_after_s: float = 0.5, camera_height_m: float | None = None, body_check: bool = True):
+                 reset_after_s: float = 0.5, camera_height_m: float | None = None, body_check: bool = True,
+                 check_extrinsics: bool = True):
         self.regressor = SkeletonRegressor(model_path, threads)
         self.temporal = _open_temporal(temporal, self.regressor.path, threads, int(lag))
         self.lag_s = 0.0 if self.temporal is None else self.temporal.lag_s  # latency the model adds
         self.finder = finder or PersonFinder(self.regressor.preprocess_config())
         if camera_height_m is not None:
             self.finder.ground.camera_height_m = float(camera_height_m)
+        self.finder.ground.check_given_pose = bool(check_extrinsics)
         self.min_cutoff, self.beta = float(min_cutoff), float(beta)
         # The temporal model smooths already (and better, docs/skeleton.md): One Euro on top would
         # only add lag, so by default it runs only without one.
@@ -170,14 +175,19 @@ class SkeletonStage:
     def details(self) -> dict:
         """For stats.json: where up and the floor came from (given extrinsics, the camera's IMU,
         a floor plane, a level camera refined by the performer), each change of that source with
-        its time, the camera's height above the floor of the last frame solved, and the height
-        the user gave (``--camera-height``, or None)."""
+        its time, the camera's height above the floor of the last frame solved, the height
+        the user gave (``--camera-height``, or None), and how far a given camera pose was turned
+        to the room's up at the end (degrees; 0 when it agreed, None when none was given)."""
         finder = self.finder
         c2w = self._solved_in[-1][1] if self._solved_in else None
+        fix = finder.ground.given_fix
+        given = (finder.up_source or "").startswith("given")
         return {"up_source": finder.up_source,
                 "up_source_changes": [{"t_ns": t, "source": s} for t, s in finder.ground.changes],
                 "camera_height_m": None if c2w is None else round(float(c2w[1, 3]), 3),
-                "camera_height_given_m": finder.ground.camera_height_m}
+                "camera_height_given_m": finder.ground.camera_height_m,
+                "given_pose_turned_deg": None if not given else 0.0 if fix is None
+                else round(angle_deg(fix[:3, 1], np.array([0.0, 1.0, 0.0])), 2)}
 
     def observe(self, frame: object) -> None:
         """Side frames in stream order. The samples of the camera's own IMU (a ``<camera>_imu``
@@ -207,7 +217,7 @@ class SkeletonStage:
         if cloud is None:
             self._counters.nobody += 1
             return None
-        local = next((j for c, j in judged if c is cloud), None)
+        local = next((j for c, j in judged if c.points is cloud.points), None)  # the same sample
         if local is None:
             local = self.regressor(cloud.points)
         local = local.astype(np.float64)

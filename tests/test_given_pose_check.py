@@ -1,0 +1,84 @@
+"""Given extrinsics checked against the room: a floor or a wall that disagrees turns them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from live.core.frames import DepthFrame
+from live.core.rotations import angle_deg, axis_matrix
+from live.core.skeleton import default_rest_joints
+from models.skeleton.ground import GroundEstimator, turned_to_up
+from models.skeleton.preprocess import PersonFinder
+from sim.depth_camera import NoiseModel, VirtualDepthCamera, look_at_camera
+from sim.room import Room, capsule_body
+
+PERSON = capsule_body(default_rest_joints(1.75).astype(np.float64))
+CAMERA = look_at_camera(3.0, 1.3, 0.3)
+
+
+def pitched(c2w: np.ndarray, degrees: float) -> np.ndarray:
+    """The pose a user would give for ``c2w`` with its pitch wrong by ``degrees``."""
+    turn = np.eye(4)
+    turn[:3, :3] = axis_matrix("X", np.radians(degrees))
+    return c2w @ turn
+
+
+def frame(given: np.ndarray, room: Room = Room(width=9.0, depth=9.0), t_ns: int = 1_000,
+          camera: np.ndarray = CAMERA) -> DepthFrame:
+    cam = VirtualDepthCamera("oak-d", camera, noise=NoiseModel(), seed=0)
+    return DepthFrame(t_ns=t_ns, sensor="cam", camera_to_world=given, depth_mm=cam.render(*PERSON, room=room),
+                      intrinsics=cam.intrinsics)
+
+
+def test_a_right_pose_is_used_as_given():
+    finder = PersonFinder()
+    cloud = finder.find(frame(CAMERA))
+    assert cloud is not None and finder.up_source == "given" and finder.ground.given_fix is None
+    np.testing.assert_array_equal(cloud.camera_to_world, CAMERA)
+
+
+def test_a_pose_pitched_wrong_is_turned_to_the_floor_and_reported_in_the_given_world():
+    given = pitched(CAMERA, 8.0)
+    checked, as_given = PersonFinder(), PersonFinder()
+    as_given.ground.check_given_pose = False
+    cloud, raw = checked.find(frame(given)), as_given.find(frame(given))
+    assert checked.up_source == "given+floor" and as_given.up_source == "given"
+    # Solved in the room's world: the camera's up and height as they are.
+    room = checked.ground.room_from_given(given)
+    assert angle_deg(room[1, :3], CAMERA[1, :3]) < 1.0 and abs(room[1, 3] - CAMERA[1, 3]) < 0.03
+    assert 1.6 < cloud.height_m < 1.95  # the head above the room's floor
+    # As given, the floor lies 40 cm off under the performer: lost, or a head at the wrong height.
+    assert raw is None or not 1.6 < raw.height_m < 1.95
+    # Reported in the given world, with the room's up: seen from the camera, the person frame's
+    # up is the true up.
+    np.testing.assert_array_equal(cloud.camera_to_world, given)
+    person_up_in_camera = given[:3, :3].T @ cloud.to_world[:3, 1]
+    assert angle_deg(person_up_in_camera, CAMERA[1, :3]) < 1.0
+
+
+def test_without_a_floor_a_wall_turns_the_pose_and_the_floor_is_placed_under_the_performer():
+    camera = look_at_camera(2.5, 1.3, 0.3)  # walls 1-5.5 m away, a floor the sensor does not return
+    given = pitched(camera, -10.0)
+    finder = PersonFinder()
+    cloud = finder.find(frame(given, room=Room(width=6.0, depth=6.0, floor=False), camera=camera))
+    assert cloud is not None and finder.up_source == "given+wall"
+    room = finder.ground.room_from_given(given)
+    assert angle_deg(room[1, :3], camera[1, :3]) < 1.5
+    assert 1.6 < cloud.height_m < 1.95
+
+
+def test_turned_to_up_keeps_the_camera_and_its_heading():
+    turned = turned_to_up(pitched(CAMERA, 12.0), CAMERA[1, :3], 1.1)
+    assert angle_deg(turned[1, :3], CAMERA[1, :3]) < 1e-6 and turned[1, 3] == 1.1
+    np.testing.assert_allclose(turned[[0, 2], 3], CAMERA[[0, 2], 3])
+    np.testing.assert_allclose(turned[:3, :3] @ turned[:3, :3].T, np.eye(3), atol=1e-12)
+    # The camera's viewing direction keeps its heading: turned only about a horizontal axis.
+    forward = turned[:3, :3] @ [0.0, 0.0, 1.0]
+    true_forward = CAMERA[:3, :3] @ [0.0, 0.0, 1.0]
+    assert angle_deg(forward * [1, 0, 1], true_forward * [1, 0, 1]) < 1e-6
+
+
+def test_checks_follow_the_recheck_period_and_can_be_turned_off():
+    ground = GroundEstimator(check_given_pose=False)
+    ground.check_given(0, pitched(CAMERA, 8.0), np.zeros((10, 3)))
+    assert ground.source == "given" and ground.given_fix is None and ground.searches == 0
