@@ -8,7 +8,8 @@ model alone (ours and the reference PointNet, same process, same input), and the
 with a model whose card asks for the depth-edge test, the finder without it too, for the ratio.
 With --against, another regressor (e.g. a previous shipped one, with its card beside it) is timed
 in the same process, the two taking turns frame by frame, model alone and whole stage, for the
-ratio of their medians.
+ratio of their medians. The given camera pose's check against the room (a floor search every 2 s)
+is timed the same way: the stage as shipped and with ``check_extrinsics=False``, in turns.
 """
 
 from __future__ import annotations
@@ -130,6 +131,9 @@ def main(argv: list[str] | None = None) -> None:
         if stage.temporal is not None:
             plain = SkeletonStage(path, threads=args.threads, temporal=False)
             rows.append((f"whole stage: {label}, One Euro only", *timed(plain.estimate, frames)))
+    checked, trusted = (SkeletonStage(threads=args.threads, check_extrinsics=c) for c in (True, False))
+    both = timed_alternating([checked.estimate, trusted.estimate], frames)
+    rows += [("whole stage, given pose checked", *both[0]), ("whole stage, given pose taken as is", *both[1])]
     if args.against is not None:
         rows += against(args.against, frames, args.threads)
     print(f"{'':<40}{'median ms':>10}{'p95 ms':>10}")
@@ -139,6 +143,9 @@ def main(argv: list[str] | None = None) -> None:
     if "preprocess without the edge test" in by_name:
         print("preprocess: with / without the edge test (medians, same process) = "
               f"{by_name['preprocess (PersonFinder)'] / by_name['preprocess without the edge test']:.2f}")
+    print("whole stage: given pose checked / taken as is (in turns, same process) = "
+          f"{by_name['whole stage, given pose checked'] / by_name['whole stage, given pose taken as is']:.2f} median, "
+          f"{both[0][1] / both[1][1]:.2f} p95")
     if args.against is not None:
         for what in ("model alone", "whole stage"):
             print(f"{what}: shipped / {args.against.name} (medians, in turns, same process) = "

@@ -82,3 +82,37 @@ def test_checks_follow_the_recheck_period_and_can_be_turned_off():
     ground = GroundEstimator(check_given_pose=False)
     ground.check_given(0, pitched(CAMERA, 8.0), np.zeros((10, 3)))
     assert ground.source == "given" and ground.given_fix is None and ground.searches == 0
+
+
+def test_the_stage_reports_how_far_the_given_pose_was_turned():
+    from models.skeleton.runtime import SkeletonStage
+
+    checked, trusted = SkeletonStage(temporal=False), SkeletonStage(temporal=False, check_extrinsics=False)
+    skeleton = checked.estimate(frame(pitched(CAMERA, 8.0)))
+    assert skeleton is not None
+    np.testing.assert_array_equal(skeleton.camera_to_world, pitched(CAMERA, 8.0))
+    trusted.estimate(frame(pitched(CAMERA, 8.0)))  # the performer sinks into the floor: likely nobody
+    assert checked.details["up_source"] == "given+floor"
+    assert abs(checked.details["given_pose_turned_deg"] - 8.0) < 1.0
+    assert trusted.details["up_source"] == "given" and trusted.details["given_pose_turned_deg"] == 0.0
+    # Checked, the skeleton stands upright in the room: the head above the pelvis along the
+    # camera's true up, not along the given one's.
+    joints = checked.estimate(frame(pitched(CAMERA, 8.0), t_ns=2_000)).joints
+    given = pitched(CAMERA, 8.0)
+    spine_in_camera = given[:3, :3].T @ (joints[15] - joints[0])
+    assert angle_deg(spine_in_camera, CAMERA[1, :3]) < 12.0
+
+
+def test_the_study_gives_the_pose_wrong_as_a_user_would():
+    from research.given_pose_error import error_transform
+
+    pitch, camera_side = error_transform("pitch", 9.0)
+    assert camera_side and abs(np.degrees(np.arccos(pitch[1, 1])) - 9.0) < 1e-9
+    height, camera_side = error_transform("height", 20.0)
+    assert not camera_side and height[1, 3] == 0.2
+    try:
+        error_transform("yaw", 3.0)
+    except ValueError as e:
+        assert "unknown error" in str(e)
+    else:
+        raise AssertionError("an unknown error kind was accepted")
