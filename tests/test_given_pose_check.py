@@ -116,3 +116,38 @@ def test_the_study_gives_the_pose_wrong_as_a_user_would():
         assert "unknown error" in str(e)
     else:
         raise AssertionError("an unknown error kind was accepted")
+
+
+def _folder(path, given: np.ndarray, frames: int = 3):
+    import json
+
+    import cv2
+
+    path.mkdir()
+    for i in range(frames):
+        f = frame(given, t_ns=i)
+        cv2.imwrite(str(path / f"{i:04d}.png"), f.depth_mm)
+    k = f.intrinsics
+    h, w = f.depth_mm.shape
+    (path / "intrinsics.json").write_text(json.dumps({"fx": k[0, 0], "fy": k[1, 1], "cx": k[0, 2], "cy": k[1, 2],
+                                                      "width": w, "height": h, "camera_to_world": given.tolist()}))
+    return path
+
+
+def test_replay_says_the_given_pose_was_turned_and_trust_extrinsics_keeps_it(tmp_path, capsys):
+    import json
+
+    from live.app.cli import main
+
+    folder = _folder(tmp_path / "depth", pitched(CAMERA, 8.0))
+    assert main(["replay", str(folder), "--out", str(tmp_path / "checked")]) == 0
+    out = capsys.readouterr().out
+    assert "degrees off the floor in view" in out and "--trust-extrinsics" in out
+    details = json.loads((tmp_path / "checked" / "stats.json").read_text())["stages"]["skeleton"]["details"]
+    assert details["up_source"] == "given+floor" and abs(details["given_pose_turned_deg"] - 8.0) < 1.0
+    skeleton = np.load(tmp_path / "checked" / "skeleton.npz")
+    np.testing.assert_allclose(skeleton["camera_to_world"][0], pitched(CAMERA, 8.0))
+    main(["replay", str(folder), "--out", str(tmp_path / "trusted"), "--trust-extrinsics"])
+    assert "the given pose" not in capsys.readouterr().out
+    details = json.loads((tmp_path / "trusted" / "stats.json").read_text())["stages"]["skeleton"]["details"]
+    assert details["up_source"] == "given" and details["given_pose_turned_deg"] == 0.0

@@ -146,6 +146,11 @@ def _print_summary(stats: dict) -> None:
     e2e = stats["end_to_end"]["latency_ms"]
     if e2e.get("count"):
         rows.append(("end-to-end p50/p95 ms", p50_p95(e2e)))
+    details = (stats["stages"].get("skeleton") or {}).get("details") or {}
+    if details.get("given_pose_turned_deg"):
+        seen = "floor" if details.get("up_source") == "given+floor" else "walls"
+        rows.append(("camera pose", f"the given pose is {details['given_pose_turned_deg']:.1f} degrees off the {seen} "
+                     "in view: solved in the room's up, reported in the given world (--trust-extrinsics: as given)"))
     if stats.get("skeleton_lag_ms"):
         rows.append(("skeleton lag", f"{stats['skeleton_lag_ms']:.0f} ms (--lag: each skeleton is of an earlier "
                      "frame; add it to the latencies above)"))
