@@ -151,3 +151,17 @@ def test_replay_says_the_given_pose_was_turned_and_trust_extrinsics_keeps_it(tmp
     assert "the given pose" not in capsys.readouterr().out
     details = json.loads((tmp_path / "trusted" / "stats.json").read_text())["stages"]["skeleton"]["details"]
     assert details["up_source"] == "given" and details["given_pose_turned_deg"] == 0.0
+
+
+def test_the_figure_of_the_real_frames_given_a_level_pose(tmp_path, capsys):
+    import pytest
+
+    from live.core import assets
+    from research.given_pose_figure import FOLDER, main
+
+    if not (assets.shared_data_dir() / "real_depth" / FOLDER).is_dir():
+        pytest.skip("no ../shared/data/real_depth")
+    assert main(["--out", str(tmp_path / "f.png")]) == 0
+    assert (tmp_path / "f.png").stat().st_size > 10_000
+    printed = capsys.readouterr().out
+    assert "pose checked (default): up from given+" in printed
