@@ -4,9 +4,9 @@ The skeleton stage works in a world frame with +y up and the floor at y = 0. Sou
 of trust (``GroundEstimator.camera_to_world``):
 
 1. ``given``: the frame's own camera_to_world (a calibrated rig, a synthetic session), checked
-   against the room (``GroundEstimator.check_given``): a floor in view that disagrees with it by
-   more than a couple of degrees or centimetres, or a wall that is not vertical in it, turns its
-   up (``given+floor``, ``given+wall``). A pose given by hand ("level, 1.2 m high") is often a
+   against the room (``GroundEstimator.check_given``): a floor in view lying more than 8 cm off
+   its floor or tilted more than 6 degrees from it, or walls more than 5 degrees off vertical in
+   it, turn its up (``given+floor``, ``given+wall``). A pose given by hand ("level, 1.2 m high") is often a
    few degrees off, and the regressor reads the body against the floor: 3 degrees of pitch at 3
    m puts the floor 16 cm off under the performer, and PCK@10cm falls from 0.78 to 0.62-0.70;
 2. ``imu``: the camera's accelerometer (gravity measured while the camera is still) gives up;
@@ -107,7 +107,7 @@ def find_floor(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, max_tilt
 
 
 def find_wall(points_cam: np.ndarray, up_prior: np.ndarray = LEVEL_UP, **wall) -> np.ndarray | None:
-    """Up (camera axes) from the largest wall of a camera-frame cloud (M, 3) (``wall_normal``),
+    """Up (camera axes) from the largest wall of a camera-frame cloud (M, 3) (``wall_normals``),
     or None. For a wall that faces the camera, up along it and across the camera's x axis (a
     camera pitched but not rolled, as the level prior assumes: the wall gives the pitch); for a
     wall beside, ``up_prior`` turned into the wall's plane (the wall gives the roll)."""
