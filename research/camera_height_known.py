@@ -24,6 +24,7 @@ import numpy as np
 
 from live.core import assets
 from research.compare_skeleton import scores
+from research.given_pose_error import error_transform
 
 #: The variants: (name, the camera's height given, up from an IMU, the whole pose given).
 VARIANTS = (("guessed", False, False, False), ("camera height", True, False, False),
@@ -39,18 +40,15 @@ def told(height: bool, imu: bool, pose: bool, roll_deg: float = 0.0):
     import sim.sensor_realism as realism
     import sim.skeleton_data as data
     from models.skeleton import preprocess
+    from sim.depth_camera import VirtualDepthCamera
 
     state: dict = {}
     view, extras, find = data.random_view, realism.random_extras, preprocess.PersonFinder.find
+    turn = error_transform("roll", roll_deg)[0]  # about the camera's optical axis
 
     def random_view(job, rng):
         camera, room = view(job, rng)
         if roll_deg:
-            from live.core.rotations import axis_matrix
-            from sim.depth_camera import VirtualDepthCamera
-
-            turn = np.eye(4)
-            turn[:3, :3] = axis_matrix("Z", np.radians(roll_deg))
             rolled = VirtualDepthCamera(camera.preset, camera.camera_to_world @ turn, noise=camera.noise)
             rolled.rng = camera.rng  # the same noise draws
             camera = rolled
