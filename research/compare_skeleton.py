@@ -1,6 +1,7 @@
 """Skeleton regressors side by side on the held-out validation sets, per split, sensor and body.
 
     python -m research.compare_skeleton [--models A.onnx B.onnx ...] [--val 1200] [--json FILE]
+                                        [--mirrored-readings]
 
 The sets are train_skeleton's (seeds 1, 2 and 3 beside training's 0; cached under
 .cache/skeleton_data): "val" (OAK-D 1.5-4 m, the default sensor model), "val_upper" (close-ups)
@@ -13,6 +14,12 @@ front, a person behind, clothes, close-up, camera pitch and distance: ``sim.skel
 and per posture with extrinsics given or hidden (``CROSSED``), and the views like the real Xtion
 frames' (``like_real_xtion``). Each cell also gives the share of frames whose body is turned more
 than 45 degrees from the truth's (``live.core.metrics.turned_share``).
+
+``--mirrored-readings`` also reads each val_real cloud mirrored (x -> -x, the answer mirrored
+back) and prints how often the two readings face more than 90 degrees apart, and PCK@10cm after
+root alignment of the direct reading, of the one facing the camera more where they disagree, of
+their average and of the better of the two per frame (known only from the truth): whether the
+network is torn between front and back on the frames it turns, or sure of the wrong one.
 """
 
 from __future__ import annotations
@@ -96,12 +103,40 @@ def predict(model: Path, points: np.ndarray) -> np.ndarray:
     return np.concatenate([reg(points[a:a + 256, :n]) for a in range(0, len(points), 256)]).astype(np.float64)
 
 
-def compare(models: list[Path], n_val: int, workers: int = 2) -> dict:
+def mirrored_readings(model: Path, d: dict) -> dict:
+    """The direct and the mirrored reading of val_real's clouds side by side
+    (``--mirrored-readings``): frames whose readings face more than 90 degrees apart, and
+    root-aligned PCK@10cm of each way of choosing between them."""
+    from live.core.heading import body_heading, wrap_angle
+    from sim.skeleton_data import mirror
+
+    gt = d["joints"].astype(np.float64)
+    direct = predict(model, d["points"])
+    mirrored_points, _ = mirror(d["points"], d["joints"])
+    _, back = mirror(mirrored_points, predict(model, mirrored_points))
+
+    def aligned_pck(pred: np.ndarray) -> np.ndarray:
+        aligned = pred + gt[:, :1] - pred[:, :1]
+        return (np.linalg.norm(aligned - gt, axis=-1) < 0.1).mean(axis=1)
+
+    facing_direct, facing_back = body_heading(direct), body_heading(back)
+    apart = np.abs(wrap_angle(facing_direct - facing_back)) > np.pi / 2
+    toward = np.where(apart & (np.abs(facing_back) < np.abs(facing_direct)), 1, 0)  # +z: the camera
+    p_direct, p_back = aligned_pck(direct), aligned_pck(back)
+    return {"frames": int(len(gt)), "apart_90": int(apart.sum()),
+            "direct": round(float(p_direct.mean()), 3),
+            "facing_camera_where_apart": round(float(np.where(toward == 1, p_back, p_direct).mean()), 3),
+            "average": round(float(aligned_pck((direct + back) / 2).mean()), 3),
+            "better_of_two": round(float(np.maximum(p_direct, p_back).mean()), 3)}
+
+
+def compare(models: list[Path], n_val: int, workers: int = 2, mirrored: bool = False) -> dict:
     from live.core.skeleton import UPPER_BODY_JOINTS
     from models.skeleton.runtime import SkeletonRegressor
     from sim.skeleton_data import generate
 
     out: dict = {}
+    readings: dict = {}
     for split, seed in SPLITS:
         n = max(n_val // 3, 12) if split == "val_upper" else n_val
         joints = list(UPPER_BODY_JOINTS) if split == "val_upper" else slice(None)
@@ -115,13 +150,25 @@ def compare(models: list[Path], n_val: int, workers: int = 2) -> dict:
             row = {"all": scores(pred[:, joints], gt[:, joints], shift)}
             for name, m in groups(d, split):
                 row[name] = scores(pred[m][:, joints], gt[m][:, joints], shift[m])
+            if mirrored and split == "val_real":
+                readings[model.name] = mirrored_readings(model, d)
             out.setdefault(split, {})[model.name if model.name not in out.get(split, {}) else str(model)] = row
+    if readings:
+        out["mirrored_readings"] = readings
     return out
 
 
 def markdown(results: dict) -> str:
     lines = []
     for split, by_model in results.items():
+        if split == "mirrored_readings":
+            lines.append("\n**val_real, direct and mirrored readings** (frames; readings facing over 90 degrees "
+                         "apart; root-aligned PCK@10cm: direct, the one facing the camera where apart, "
+                         "average, better of two)\n")
+            lines += [f"- {m}: {r['frames']}; {r['apart_90']}; {r['direct']:.3f}, "
+                      f"{r['facing_camera_where_apart']:.3f}, {r['average']:.3f}, {r['better_of_two']:.3f}"
+                      for m, r in by_model.items()]
+            continue
         names = list(by_model)
         groups = list(next(iter(by_model.values())))
         lines.append(f"\n**{split}** (MPJPE / PA-MPJPE mm, PCK@10cm; root-aligned MPJPE mm / PCK@10cm"
@@ -143,11 +190,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--val", type=int, default=1200, help="samples per validation set (the card's: 1200)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--mirrored-readings", action="store_true",
+                    help="also read val_real's clouds mirrored: is the network torn between front and back?")
     args = ap.parse_args(argv)
     missing = [m for m in args.models if not m.is_file()]
     if missing:
         ap.error(f"no model file {missing[0]}")
-    results = compare(args.models, args.val, args.workers)
+    results = compare(args.models, args.val, args.workers, args.mirrored_readings)
     print(markdown(results))
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n")

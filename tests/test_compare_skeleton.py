@@ -50,3 +50,24 @@ def test_views_like_the_real_xtion_frames_and_the_turned_share():
     s = scores(np.stack([gt[0], facing_away[1]]), gt, np.zeros((2, 1, 3)))
     assert s["turned_45_share"] == 0.5
     assert scores(gt[:, :14], gt[:, :14], np.zeros((2, 1, 3)))["turned_45_share"] is None  # not 22 joints
+
+
+def test_mirrored_readings_read_a_cloud_and_its_mirror_image_the_same_two_ways():
+    from models.skeleton.runtime import DEFAULT_MODEL, SkeletonRegressor
+    from research.compare_skeleton import mirrored_readings, predict
+    from sim.skeleton_data import mirror
+
+    rng = np.random.default_rng(3)
+    n = SkeletonRegressor(DEFAULT_MODEL).num_points
+    pts = rng.normal([0.0, 1.0, 0.0], [0.15, 0.45, 0.08], (4, n, 3))
+    pts[:, :60, 0] += rng.uniform(0.3, 0.6, (4, 1))  # one arm out: not its own mirror image
+    pts[:, :60, 1] = rng.uniform(1.3, 1.5, (4, 60))
+    pts = pts.astype(np.float32)
+    direct = predict(DEFAULT_MODEL, pts)
+    r = mirrored_readings(DEFAULT_MODEL, {"points": pts, "joints": direct})
+    assert r["frames"] == 4 and r["direct"] == 1.0 and r["better_of_two"] == 1.0
+    assert 0 <= r["apart_90"] <= 4 and r["average"] <= 1.0
+    # The mirror image's mirrored reading is the cloud's direct one, mirrored: it scores 1 there.
+    flipped, truth = mirror(pts, direct)
+    m = mirrored_readings(DEFAULT_MODEL, {"points": flipped, "joints": truth})
+    assert m["better_of_two"] == 1.0 and m["apart_90"] == r["apart_90"]
