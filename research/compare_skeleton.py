@@ -18,8 +18,9 @@ than 45 degrees from the truth's (``live.core.metrics.turned_share``).
 ``--mirrored-readings`` also reads each val_real cloud mirrored (x -> -x, the answer mirrored
 back) and prints how often the two readings face more than 90 degrees apart, and PCK@10cm after
 root alignment of the direct reading, of the one facing the camera more where they disagree, of
-their average and of the better of the two per frame (known only from the truth): whether the
-network is torn between front and back on the frames it turns, or sure of the wrong one.
+the one whose bones lie nearer the cloud (``models.skeleton.body_fit``), of their average and of
+the better of the two per frame (known only from the truth): whether the network is torn between
+front and back on the frames it turns, or sure of the wrong one.
 """
 
 from __future__ import annotations
@@ -108,6 +109,7 @@ def mirrored_readings(model: Path, d: dict) -> dict:
     (``--mirrored-readings``): frames whose readings face more than 90 degrees apart, and
     root-aligned PCK@10cm of each way of choosing between them."""
     from live.core.heading import body_heading, wrap_angle
+    from models.skeleton.body_fit import body_fit
     from sim.skeleton_data import mirror
 
     gt = d["joints"].astype(np.float64)
@@ -123,9 +125,11 @@ def mirrored_readings(model: Path, d: dict) -> dict:
     apart = np.abs(wrap_angle(facing_direct - facing_back)) > np.pi / 2
     toward = np.where(apart & (np.abs(facing_back) < np.abs(facing_direct)), 1, 0)  # +z: the camera
     p_direct, p_back = aligned_pck(direct), aligned_pck(back)
+    fit_direct, fit_back = ([body_fit(j, p) for j, p in zip(pred, d["points"])] for pred in (direct, back))
     return {"frames": int(len(gt)), "apart_90": int(apart.sum()),
             "direct": round(float(p_direct.mean()), 3),
             "facing_camera_where_apart": round(float(np.where(toward == 1, p_back, p_direct).mean()), 3),
+            "fits_the_cloud_better": round(float(np.where(np.less(fit_back, fit_direct), p_back, p_direct).mean()), 3),
             "average": round(float(aligned_pck((direct + back) / 2).mean()), 3),
             "better_of_two": round(float(np.maximum(p_direct, p_back).mean()), 3)}
 
@@ -164,9 +168,10 @@ def markdown(results: dict) -> str:
         if split == "mirrored_readings":
             lines.append("\n**val_real, direct and mirrored readings** (frames; readings facing over 90 degrees "
                          "apart; root-aligned PCK@10cm: direct, the one facing the camera where apart, "
-                         "average, better of two)\n")
+                         "the one whose bones lie nearer the cloud, average, better of two)\n")
             lines += [f"- {m}: {r['frames']}; {r['apart_90']}; {r['direct']:.3f}, "
-                      f"{r['facing_camera_where_apart']:.3f}, {r['average']:.3f}, {r['better_of_two']:.3f}"
+                      f"{r['facing_camera_where_apart']:.3f}, {r['fits_the_cloud_better']:.3f}, "
+                      f"{r['average']:.3f}, {r['better_of_two']:.3f}"
                       for m, r in by_model.items()]
             continue
         names = list(by_model)

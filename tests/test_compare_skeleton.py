@@ -66,7 +66,7 @@ def test_mirrored_readings_read_a_cloud_and_its_mirror_image_the_same_two_ways()
     direct = predict(DEFAULT_MODEL, pts)
     r = mirrored_readings(DEFAULT_MODEL, {"points": pts, "joints": direct})
     assert r["frames"] == 4 and r["direct"] == 1.0 and r["better_of_two"] == 1.0
-    assert 0 <= r["apart_90"] <= 4 and r["average"] <= 1.0
+    assert 0 <= r["apart_90"] <= 4 and r["average"] <= 1.0 and r["fits_the_cloud_better"] <= 1.0
     # The mirror image's mirrored reading is the cloud's direct one, mirrored: it scores 1 there.
     flipped, truth = mirror(pts, direct)
     m = mirrored_readings(DEFAULT_MODEL, {"points": flipped, "joints": truth})
