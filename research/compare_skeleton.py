@@ -123,12 +123,12 @@ def mirrored_readings(model: Path, d: dict) -> dict:
 
     facing_direct, facing_back = body_heading(direct), body_heading(back)
     apart = np.abs(wrap_angle(facing_direct - facing_back)) > np.pi / 2
-    toward = np.where(apart & (np.abs(facing_back) < np.abs(facing_direct)), 1, 0)  # +z: the camera
+    toward = apart & (np.abs(facing_back) < np.abs(facing_direct))  # heading 0: facing +z, the camera
     p_direct, p_back = aligned_pck(direct), aligned_pck(back)
     fit_direct, fit_back = ([body_fit(j, p) for j, p in zip(pred, d["points"])] for pred in (direct, back))
     return {"frames": int(len(gt)), "apart_90": int(apart.sum()),
             "direct": round(float(p_direct.mean()), 3),
-            "facing_camera_where_apart": round(float(np.where(toward == 1, p_back, p_direct).mean()), 3),
+            "facing_camera_where_apart": round(float(np.where(toward, p_back, p_direct).mean()), 3),
             "fits_the_cloud_better": round(float(np.where(np.less(fit_back, fit_direct), p_back, p_direct).mean()), 3),
             "average": round(float(aligned_pck((direct + back) / 2).mean()), 3),
             "better_of_two": round(float(np.maximum(p_direct, p_back).mean()), 3)}
