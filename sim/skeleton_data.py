@@ -133,6 +133,7 @@ class Job:
     realism: bool = False
     edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
     hard_views: bool = False  # realism views drawn with sim.sensor_realism.HARD_VIEWS
+    knee_up: bool = False  # a realism job whose performer raises the knees in turn (sim.postures)
 
     @property
     def view_odds(self):
@@ -143,11 +144,13 @@ class Job:
 
 def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
               anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False,
-              edge_jump_share: float | None = None, hard_share: float = 0.0) -> list[Job]:
+              edge_jump_share: float | None = None, hard_share: float = 0.0,
+              knee_up_share: float = 0.0) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
     probability ``anny_share``, else a training preset. "val_real" jobs always have realism.
-    hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``."""
+    hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``; knee_up_share: the
+    share of realism training jobs whose performer raises the knees in turn (``knee-up``)."""
     from live.body.library import list_presets
     from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
 
@@ -156,6 +159,7 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
     clips = split_clips(list_clips(), split)
     bodies = split_bodies(list_presets(), split)
     rng = np.random.default_rng([seed, SPLITS.index(split)])
+    knee_rng = np.random.default_rng([seed, SPLITS.index(split), 29])
     n_jobs = -(-int(n_samples * 1.05 + 1) // frames_per_job)
     jobs = []
     realism = realism or split == "val_real"
@@ -174,8 +178,10 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         body = bodies[int(rng.integers(len(bodies)))]
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
+        # From a stream of its own: with or without knee raises, the jobs are the same.
+        knee_up = bool(realism and split == "train" and knee_up_share > 0 and knee_rng.random() < knee_up_share)
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard))
+                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard, knee_up))
     return jobs
 
 
@@ -268,6 +274,10 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
         from sim.sensor_realism import realism_motion
 
         motion, posture = realism_motion(motion, job.seed, job.view_odds)
+        if job.knee_up:
+            from sim.postures import apply_posture
+
+            motion, posture = apply_posture(clip_motion(job.clip), "knee-up"), "knee-up"
     root, joints = grounded_joints(motion, body)
     t = len(root)
     span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
@@ -345,10 +355,13 @@ def view_conditions(camera_to_world: np.ndarray, posture: str, extras) -> dict:
 
 # ---------------------------------------------------------------------------- the dataset
 def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
-                realism: bool = False, edge_jump_share: float | None = None, hard_share: float = 0.0) -> Path:
+                realism: bool = False, edge_jump_share: float | None = None, hard_share: float = 0.0,
+                knee_up_share: float = 0.0) -> Path:
     fields = {"split": split, "n": n_samples, "seed": seed, "v": 5, "val_subjects": sorted(VAL_SUBJECTS)}
     if hard_share > 0:
         fields.update(hard_share=hard_share)
+    if knee_up_share > 0:
+        fields.update(knee_up_share=knee_up_share)
     if edge_jump_share is not None:
         fields.update(edge_jump_share=edge_jump_share)
     if realism or split == "val_real":
@@ -364,7 +377,7 @@ def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
              progress: bool = False, anny: int = 0, anny_share: float = 0.0,
              realism: bool = False, edge_jump_share: float | None = None,
-             hard_share: float = 0.0) -> dict[str, np.ndarray]:
+             hard_share: float = 0.0, knee_up_share: float = 0.0) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
@@ -375,17 +388,19 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     phenotypes (``anny_phenotypes``, the train extra) with probability ``anny_share``.
     realism: training jobs as users' sensors see people (module doc; "val_real" always).
     edge_jump_share: the finder leaves depth-edge pixels out of the sample (PreprocessConfig).
-    hard_share: the share of realism training jobs weighted toward hard views (``HARD_VIEWS``)."""
+    hard_share: the share of realism training jobs weighted toward hard views (``HARD_VIEWS``).
+    knee_up_share: the share of realism training jobs raising the knees in turn (``knee-up``)."""
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
     hard_share = hard_share if realism else 0.0
-    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share, hard_share)
+    knee_up_share = knee_up_share if realism else 0.0
+    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share, hard_share, knee_up_share)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     phenotypes = anny_phenotypes(anny, seed) if anny else None
     jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism,
-                     edge_jump_share=edge_jump_share, hard_share=hard_share)
+                     edge_jump_share=edge_jump_share, hard_share=hard_share, knee_up_share=knee_up_share)
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),

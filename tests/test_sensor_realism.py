@@ -112,3 +112,15 @@ def test_realism_sequences_keep_each_frames_truth_in_the_finders_world(monkeypat
     local = np.einsum("fij,fkj->fki", inv[:, :3, :3], out["joints"][found]) + inv[:, None, :3, 3]
     assert (local[:, JOINT_INDEX["head"], 1] > local[:, 0, 1] + 0.3).all()
     assert np.abs(local[:, 0, [0, 2]]).max() < 0.6
+
+
+def test_a_knee_up_job_gives_samples_of_a_performer_raising_a_knee():
+    from live.core.skeleton import JOINT_INDEX as J
+
+    job = next(j for j in plan_jobs("train", 400, 0, realism=True, knee_up_share=1.0) if not j.closeup)
+    out = run_job(replace(job, camera="xtion"))
+    assert len(out["frame"]) >= 4 and set(out["posture"]) == {"knee-up"}
+    joints = out["joints"]
+    raised = np.maximum(*(joints[:, J[f"{s}_knee"], 1] - joints[:, J[f"{s}_hip"], 1] for s in ("left", "right")))
+    hanging = np.minimum(*(joints[:, J[f"{s}_knee"], 1] - joints[:, J[f"{s}_hip"], 1] for s in ("left", "right")))
+    assert (hanging < -0.25).all() and raised.max() > hanging.max() + 0.1  # one leg stands, the other rises

@@ -128,6 +128,29 @@ def test_postures_stay_in_place_sit_on_a_chair_and_crouch(shared_bvh):
     assert seat.size[1] < seated[:, J["left_hip"], 1].min() and not scenes["crouching"].room.boxes
 
 
+def test_knee_up_raises_each_knee_in_turn_toward_where_the_body_faces(shared_bvh):
+    from live.core.heading import body_heading
+    from sim.postures import KNEE_UP_PERIOD_S, knee_raise
+
+    left, right = knee_raise(np.array([0.25, 0.5, 0.75, 1.25]) * KNEE_UP_PERIOD_S)
+    assert left.tolist() == pytest.approx([1.0, 0.0, 0.0, 1.0]) and right.tolist() == pytest.approx([0.0, 0.0, 1.0, 0.0])
+    motion = load_motion(shared_bvh / "mb_08_07.bvh")
+    scene = SyntheticScene.build(motion, load_body("teen_girl_14y"), fps=30, posture="knee-up")
+    j = scene.joints
+    assert np.ptp(j[:, J["pelvis"], 2]) < 0.3  # in place
+    up = {side: j[:, J[f"{side}_knee"], 1] - j[:, J[f"{side}_hip"], 1] for side in ("left", "right")}
+    t = np.arange(len(j)) / 30.0
+    peak_left, peak_right = (np.abs(t % KNEE_UP_PERIOD_S - f * KNEE_UP_PERIOD_S) < 0.02 for f in (0.25, 0.75))
+    assert up["left"][peak_left].min() > -0.05 and up["right"][peak_left].max() < -0.3  # left thigh level
+    assert up["right"][peak_right].min() > -0.05 and up["left"][peak_right].max() < -0.3
+    knee_ahead = j[:, J["left_knee"]] - j[:, J["left_hip"]]
+    facing = body_heading(j)
+    ahead = knee_ahead[:, 0] * np.sin(facing) + knee_ahead[:, 2] * np.cos(facing)
+    assert ahead[peak_left].min() > 0.3  # the raised knee is in front of the body
+    feet = j[:, [J["left_ankle"], J["right_ankle"]], 1].min(axis=1)
+    assert feet.max() < 0.15  # one foot stays on the floor
+
+
 def test_synth_command_pitch_posture_floor_and_hidden_extrinsics(tmp_path, shared_bvh):
     from live.app.cli import main
 
