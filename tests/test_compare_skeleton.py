@@ -71,3 +71,20 @@ def test_mirrored_readings_read_a_cloud_and_its_mirror_image_the_same_two_ways()
     flipped, truth = mirror(pts, direct)
     m = mirrored_readings(DEFAULT_MODEL, {"points": flipped, "joints": truth})
     assert m["better_of_two"] == 1.0 and m["apart_90"] == r["apart_90"]
+
+
+def test_knee_up_views_score_the_stage_on_held_out_knee_raises_seen_from_in_front():
+    from live.core.heading import body_heading
+    from models.skeleton.runtime import DEFAULT_MODEL
+    from research.knee_up_views import scenes, solve
+
+    built = scenes(2, 6, seed=1)
+    for scene, frames in built:
+        assert frames == 6 and scene.motion.name.endswith("(knee-up)")
+        to_camera = scene.camera.camera_to_world[[0, 2], 3] - scene.joints[0, 0, [0, 2]]
+        facing = body_heading(scene.joints[:1])[0]
+        ahead = (np.sin(facing) * to_camera[0] + np.cos(facing) * to_camera[1]) / np.linalg.norm(to_camera)
+        assert ahead > np.cos(np.radians(60))  # the camera stands in front of the performer
+    row = solve(DEFAULT_MODEL, built)
+    assert row["frames"] + row["frames_missed"] == 12 and 0.0 < row["mpjpe_mm"] < 300.0
+    assert row["knees_mm"] > 0.0 and row["ankles_mm"] > 0.0

@@ -1,0 +1,97 @@
+"""Skeleton regressors on performers raising a knee toward the camera (the ``knee-up`` posture).
+
+Held-out clips on the held-out bodies, performed in sim.postures' knee-up posture (the left and
+then the right knee raised in turn) and seen from in front (within 45 degrees of where the
+performer faces, 1.8-3.5 m away, 0.7-1.5 m high, level) by each sensor model in turn. Every frame
+goes through the skeleton stage without its temporal model (per-frame joints, as
+research.compare_skeleton scores them), extrinsics given:
+
+    python -m research.knee_up_views [--models A.onnx B.onnx ...] [--scenes 12] [--frames 48] [--json FILE]
+
+Prints MPJPE / PA-MPJPE mm and PCK@10cm per model, and the knees' and ankles' mean error. The
+held-out realism set (val_real) holds no such pose; the training clips hold few.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from live.core import assets
+from live.core.skeleton import JOINT_INDEX
+from research.compare_skeleton import scores
+
+CAMERAS = ("xtion", "kinect-v1", "oak-d", "oak-d-pro", "kinect-v2")
+LEGS = {"knees": ("left_knee", "right_knee"), "ankles": ("left_ankle", "right_ankle")}
+
+
+def scenes(n: int, frames: int, seed: int = 0) -> list:
+    """``n`` knee-up SyntheticScenes of held-out clips and bodies, cameras in front (seeded)."""
+    from live.body.library import list_presets, load_body
+    from live.core.heading import yaw_of
+    from sim.skeleton_data import clip_motion, list_clips, split_bodies, split_clips
+    from sim.synth import CameraPlacement, SyntheticScene
+
+    rng = np.random.default_rng(seed)
+    clips = split_clips(list_clips(), "val")
+    bodies = split_bodies(list_presets(), "val")
+    out = []
+    for k in range(n):
+        motion = clip_motion(clips[int(rng.integers(len(clips)))].file)
+        yaw = yaw_of(np.asarray(motion.rotations[:, 0], np.float64))
+        facing = float(np.arctan2(np.sin(yaw).mean(), np.cos(yaw).mean()))
+        placement = CameraPlacement(distance=float(rng.uniform(1.8, 3.5)), height=float(rng.uniform(0.7, 1.5)),
+                                    yaw=facing + float(np.radians(rng.uniform(-45.0, 45.0))), pitch=0.0)
+        scene = SyntheticScene.build(motion, load_body(bodies[k % len(bodies)]), camera=CAMERAS[k % len(CAMERAS)],
+                                     fps=30.0, placement=placement, seed=k, posture="knee-up")
+        out.append((scene, min(frames, scene.num_frames)))
+    return out
+
+
+def solve(model: Path, built: list) -> dict:
+    """Per-frame joints of every scene by the stage without its temporal model, scored."""
+    from models.skeleton.runtime import SkeletonStage
+
+    preds, truths = [], []
+    for scene, frames in built:
+        stage = SkeletonStage(model, temporal=False, filter=False)
+        for i in range(frames):
+            skeleton = stage.estimate(scene.depth(i, t_ns=i * 33_333_333))
+            if skeleton is not None:
+                preds.append(skeleton.joints)
+                truths.append(scene.joints[i])
+    pred, gt = np.asarray(preds, np.float64), np.asarray(truths, np.float64)
+    row = scores(pred, gt, gt[:, :1] - pred[:, :1])
+    error = np.linalg.norm(pred - gt, axis=-1)
+    row["frames_missed"] = int(sum(f for _, f in built) - len(pred))
+    row.update({f"{name}_mm": round(1000 * float(error[:, [JOINT_INDEX[j] for j in joints]].mean()), 1)
+                for name, joints in LEGS.items()})
+    return row
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m research.knee_up_views", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", type=Path, nargs="+", default=[assets.weight("skeleton.onnx")])
+    ap.add_argument("--scenes", type=int, default=12)
+    ap.add_argument("--frames", type=int, default=48, help="frames per scene at 30 fps (48: both knees once)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    missing = [m for m in args.models if not m.is_file()]
+    if missing:
+        ap.error(f"no model file {missing[0]}")
+    built = scenes(args.scenes, args.frames)
+    results = {str(m): solve(m, built) for m in args.models}
+    print("| model | frames | MPJPE / PA-MPJPE mm / PCK@10cm | knees / ankles mm |\n|---|---|---|---|")
+    for m, r in results.items():
+        print(f"| {m} | {r['frames']} | {r['mpjpe_mm']} / {r['pa_mpjpe_mm']} / {r['pck_10cm']:.3f} | "
+              f"{r['knees_mm']} / {r['ankles_mm']} |")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
