@@ -14,8 +14,7 @@ performance on the canonical skeleton (``live.motion.clips.Motion``):
   (knees forward), the trunk leaning 20 degrees forward: a deep crouch;
 - ``knee-up``: in place, the knees raised in turn (left, then right, KNEE_UP_PERIOD_S a pair),
   the thigh swung forward up to 100 degrees and the knee bent up to 110, the standing leg
-  straight, the rest of the body as recorded: a knee held toward whoever the performer faces
-  (a camera sees it end-on, the thigh hidden behind it).
+  straight, the rest of the body as recorded: a knee held toward whoever the performer faces.
 
 Leg angles are set in the world, about the pelvis's heading (clips tilt their pelvis by up to
 20 degrees, which would tilt the thighs with it), so they mean the same on any clip and body;

@@ -273,11 +273,12 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import realism_motion
 
-        motion, posture = realism_motion(motion, job.seed, job.view_odds)
         if job.knee_up:
             from sim.postures import apply_posture
 
-            motion, posture = apply_posture(clip_motion(job.clip), "knee-up"), "knee-up"
+            motion, posture = apply_posture(motion, "knee-up"), "knee-up"
+        else:
+            motion, posture = realism_motion(motion, job.seed, job.view_odds)
     root, joints = grounded_joints(motion, body)
     t = len(root)
     span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
