@@ -28,7 +28,7 @@ from dataclasses import replace
 import numpy as np
 
 from live.core.errors import UserInputError
-from live.core.heading import direction_yaw, yaw_of, yaw_quat
+from live.core.heading import direction_yaw, mean_angle, yaw_of, yaw_quat
 from live.core.kinematics import forward_kinematics
 from live.core.rotations import quat_conjugate, quat_from_axis_angle, quat_multiply
 from live.core.skeleton import JOINT_INDEX
@@ -85,7 +85,7 @@ def apply_posture(motion: Motion, posture: str) -> Motion:
         # Still legs: one heading (the clip's mean), the pelvis at its median height.
         pelvis = rotations[:, 0]  # the root's local rotation is its global one
         yaw = yaw_of(pelvis)
-        heading = float(np.arctan2(np.sin(yaw).mean(), np.cos(yaw).mean()))
+        heading = mean_angle(yaw)
         root[:, 1] = np.median(root[:, 1])
         thigh = quat_multiply(yaw_quat(np.full(len(pelvis), heading)), _x_rotation(legs["hip"]))
         hip_local = quat_multiply(quat_conjugate(pelvis), thigh)

@@ -52,6 +52,13 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray:
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+def mean_angle(a: np.ndarray) -> float:
+    """Circular mean (radians) of angles ``a`` (any shape): the heading of the mean of their unit
+    vectors, so that -179 and +179 degrees average to 180, not 0."""
+    a = np.asarray(a, np.float64)
+    return float(np.arctan2(np.sin(a).mean(), np.cos(a).mean()))
+
+
 def yaw_between(pred: np.ndarray, obs: np.ndarray, weight: np.ndarray) -> tuple[float, float]:
     """Yaw (radians) that best turns directions pred (K, 3) onto obs (K, 3), with weights (K,);
     returns (angle, evidence), evidence = weighted horizontal length product."""

@@ -27,7 +27,7 @@ import numpy as np
 
 from live.core.errors import FormatError, UserInputError
 from live.core.frames import MocapPacket
-from live.core.heading import yaw_of, yaw_quat
+from live.core.heading import mean_angle, yaw_of, yaw_quat
 from live.core.jsonfile import read_json
 from live.core.rotations import (
     quat_angle,
@@ -198,7 +198,7 @@ def calibrate(packets: Iterable[MocapPacket], layout: SuitLayout | str | Path | 
     if per_sensor_heading:
         yaw = votes
     else:
-        yaw = np.full(layout.size, np.arctan2(np.sin(votes).mean(), np.cos(votes).mean()))
+        yaw = np.full(layout.size, mean_angle(votes))
     A = yaw_quat(yaw)
     offset = quat_normalize(quat_multiply(quat_multiply(quat_conjugate(mean), A), P))
     times = [t for v in samples.values() for t, _ in v]

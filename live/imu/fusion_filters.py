@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from live.core.heading import wrap_angle, yaw_quat
+from live.core.heading import mean_angle, wrap_angle, yaw_quat
 from live.core.rotations import quat_from_axis_angle, quat_multiply, quat_normalize, quat_rotate, quat_to_matrix, skew
 
 UP = np.array([0.0, 1.0, 0.0])
@@ -72,7 +72,7 @@ def majority_angle(votes: list[float], tolerance: float) -> float:
     a = np.asarray(votes, np.float64)
     close = np.abs(wrap_angle(a[:, None] - a[None, :])) <= tolerance
     group = a[close[int(np.argmax(close.sum(axis=1)))]]
-    return float(np.arctan2(np.sin(group).mean(), np.cos(group).mean()))
+    return mean_angle(group)
 
 
 class SensorFilter:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from live.core.heading import direction_yaw, yaw_of, yaw_quat
+from live.core.heading import direction_yaw, mean_angle, yaw_of, yaw_quat
 from live.core.rotations import quat_conjugate, quat_multiply, quat_normalize, quat_rotate, quat_to_axis_angle
 from live.core.skeleton import JOINT_INDEX
 from live.imu.calibration import mean_quat, pose_globals
@@ -165,7 +165,7 @@ def facing_from_motion(quats: np.ndarray, t: np.ndarray, joints: np.ndarray, sti
             method.append("")
     known = np.isfinite(yaw)
     if known.any():
-        mean = float(np.arctan2(np.sin(yaw[known]).mean(), np.cos(yaw[known]).mean()))
+        mean = mean_angle(yaw[known])
         method = [m or "shared" for m in method]
         yaw = np.where(known, yaw, mean)
     else:
