@@ -31,7 +31,7 @@ LEGS = {"knees": ("left_knee", "right_knee"), "ankles": ("left_ankle", "right_an
 def scenes(n: int, frames: int, seed: int = 0) -> list:
     """``n`` knee-up SyntheticScenes of held-out clips and bodies, cameras in front (seeded)."""
     from live.body.library import list_presets, load_body
-    from live.core.heading import yaw_of
+    from live.core.heading import mean_angle, yaw_of
     from sim.skeleton_data import clip_motion, list_clips, split_bodies, split_clips
     from sim.synth import CameraPlacement, SyntheticScene
 
@@ -41,8 +41,7 @@ def scenes(n: int, frames: int, seed: int = 0) -> list:
     out = []
     for k in range(n):
         motion = clip_motion(clips[int(rng.integers(len(clips)))].file)
-        yaw = yaw_of(np.asarray(motion.rotations[:, 0], np.float64))
-        facing = float(np.arctan2(np.sin(yaw).mean(), np.cos(yaw).mean()))
+        facing = mean_angle(yaw_of(np.asarray(motion.rotations[:, 0], np.float64)))
         placement = CameraPlacement(distance=float(rng.uniform(1.8, 3.5)), height=float(rng.uniform(0.7, 1.5)),
                                     yaw=facing + float(np.radians(rng.uniform(-45.0, 45.0))), pitch=0.0)
         scene = SyntheticScene.build(motion, load_body(bodies[k % len(bodies)]), camera=CAMERAS[k % len(CAMERAS)],
@@ -51,25 +50,34 @@ def scenes(n: int, frames: int, seed: int = 0) -> list:
     return out
 
 
-def solve(model: Path, built: list) -> dict:
-    """Per-frame joints of every scene by the stage without its temporal model, scored."""
+def solve(models: list[Path], built: list) -> dict:
+    """Per-frame joints of every scene by each model's stage without its temporal model, scored:
+    {model: row}. Each frame is rendered once and read by every model (the camera's noise draws
+    move on with every render)."""
+    from live.core.metrics import per_joint_mpjpe
     from models.skeleton.runtime import SkeletonStage
 
-    preds, truths = [], []
+    preds: dict = {m: [] for m in models}
+    truths: dict = {m: [] for m in models}
     for scene, frames in built:
-        stage = SkeletonStage(model, temporal=False, filter=False)
+        stages = {m: SkeletonStage(m, temporal=False, filter=False) for m in models}
         for i in range(frames):
-            skeleton = stage.estimate(scene.depth(i, t_ns=i * 33_333_333))
-            if skeleton is not None:
-                preds.append(skeleton.joints)
-                truths.append(scene.joints[i])
-    pred, gt = np.asarray(preds, np.float64), np.asarray(truths, np.float64)
-    row = scores(pred, gt, gt[:, :1] - pred[:, :1])
-    error = np.linalg.norm(pred - gt, axis=-1)
-    row["frames_missed"] = int(sum(f for _, f in built) - len(pred))
-    row.update({f"{name}_mm": round(1000 * float(error[:, [JOINT_INDEX[j] for j in joints]].mean()), 1)
-                for name, joints in LEGS.items()})
-    return row
+            frame = scene.depth(i, t_ns=i * 33_333_333)
+            for m, stage in stages.items():
+                skeleton = stage.estimate(frame)
+                if skeleton is not None:
+                    preds[m].append(skeleton.joints)
+                    truths[m].append(scene.joints[i])
+    out = {}
+    for m in models:
+        pred, gt = np.asarray(preds[m], np.float64), np.asarray(truths[m], np.float64)
+        row = scores(pred, gt, gt[:, :1] - pred[:, :1])
+        per_joint = per_joint_mpjpe(pred, gt)
+        row["frames_missed"] = int(sum(f for _, f in built) - len(pred))
+        row.update({f"{name}_mm": round(1000 * float(per_joint[[JOINT_INDEX[j] for j in joints]].mean()), 1)
+                    for name, joints in LEGS.items()})
+        out[str(m)] = row
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         ap.error(f"no model file {missing[0]}")
     built = scenes(args.scenes, args.frames)
-    results = {str(m): solve(m, built) for m in args.models}
+    results = solve(args.models, built)
     print("| model | frames | MPJPE / PA-MPJPE mm / PCK@10cm | knees / ankles mm |\n|---|---|---|---|")
     for m, r in results.items():
         print(f"| {m} | {r['frames']} | {r['mpjpe_mm']} / {r['pa_mpjpe_mm']} / {r['pck_10cm']:.3f} | "

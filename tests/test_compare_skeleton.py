@@ -73,7 +73,9 @@ def test_mirrored_readings_read_a_cloud_and_its_mirror_image_the_same_two_ways()
     assert m["better_of_two"] == 1.0 and m["apart_90"] == r["apart_90"]
 
 
-def test_knee_up_views_score_the_stage_on_held_out_knee_raises_seen_from_in_front():
+def test_knee_up_views_score_the_stage_on_held_out_knee_raises_seen_from_in_front(tmp_path):
+    import shutil
+
     from live.core.heading import body_heading
     from models.skeleton.runtime import DEFAULT_MODEL
     from research.knee_up_views import scenes, solve
@@ -85,6 +87,12 @@ def test_knee_up_views_score_the_stage_on_held_out_knee_raises_seen_from_in_fron
         facing = body_heading(scene.joints[:1])[0]
         ahead = (np.sin(facing) * to_camera[0] + np.cos(facing) * to_camera[1]) / np.linalg.norm(to_camera)
         assert ahead > np.cos(np.radians(60))  # the camera stands in front of the performer
-    row = solve(DEFAULT_MODEL, built)
+    # The same network under another name reads the very frames the first one read: same scores.
+    copy = tmp_path / "copy.onnx"
+    shutil.copy(DEFAULT_MODEL, copy)
+    shutil.copy(DEFAULT_MODEL.with_suffix(".json"), copy.with_suffix(".json"))
+    rows = solve([DEFAULT_MODEL, copy], built)
+    row = rows[str(DEFAULT_MODEL)]
     assert row["frames"] + row["frames_missed"] == 12 and 0.0 < row["mpjpe_mm"] < 300.0
     assert row["knees_mm"] > 0.0 and row["ankles_mm"] > 0.0
+    assert rows[str(copy)] == row
