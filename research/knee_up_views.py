@@ -1,12 +1,13 @@
-"""Skeleton regressors on performers raising a knee toward the camera (the ``knee-up`` posture).
+"""Skeleton regressors on performers raising a leg toward the camera (``knee-up`` or ``kick``).
 
 Held-out clips on the held-out bodies, performed in sim.postures' knee-up posture (the left and
-then the right knee raised in turn) and seen from in front (within 45 degrees of where the
+then the right knee raised in turn) or its kick posture (front kicks in turn), seen from in front (within 45 degrees of where the
 performer faces, 1.8-3.5 m away, 0.7-1.5 m high, level) by each sensor model in turn. Every frame
 goes through the skeleton stage without its temporal model (per-frame joints, as
 research.compare_skeleton scores them), extrinsics given:
 
-    python -m research.knee_up_views [--models A.onnx B.onnx ...] [--scenes 12] [--frames 48] [--json FILE]
+    python -m research.knee_up_views [--models A.onnx B.onnx ...] [--posture knee-up|kick] [--scenes 12]
+                                      [--frames 48] [--json FILE]
 
 Prints MPJPE / PA-MPJPE mm and PCK@10cm per model, and the knees' and ankles' mean error. The
 held-out realism set (val_real) holds no such pose; the training clips hold few.
@@ -28,8 +29,8 @@ CAMERAS = ("xtion", "kinect-v1", "oak-d", "oak-d-pro", "kinect-v2")
 LEGS = {"knees": ("left_knee", "right_knee"), "ankles": ("left_ankle", "right_ankle")}
 
 
-def scenes(n: int, frames: int, seed: int = 0) -> list:
-    """``n`` knee-up SyntheticScenes of held-out clips and bodies, cameras in front (seeded)."""
+def scenes(n: int, frames: int, seed: int = 0, posture: str = "knee-up") -> list:
+    """``n`` SyntheticScenes in ``posture`` of held-out clips and bodies, cameras in front (seeded)."""
     from live.body.library import list_presets, load_body
     from live.core.heading import mean_angle, yaw_of
     from sim.skeleton_data import clip_motion, list_clips, split_bodies, split_clips
@@ -45,7 +46,7 @@ def scenes(n: int, frames: int, seed: int = 0) -> list:
         placement = CameraPlacement(distance=float(rng.uniform(1.8, 3.5)), height=float(rng.uniform(0.7, 1.5)),
                                     yaw=facing + float(np.radians(rng.uniform(-45.0, 45.0))), pitch=0.0)
         scene = SyntheticScene.build(motion, load_body(bodies[k % len(bodies)]), camera=CAMERAS[k % len(CAMERAS)],
-                                     fps=30.0, placement=placement, seed=k, posture="knee-up")
+                                     fps=30.0, placement=placement, seed=k, posture=posture)
         out.append((scene, min(frames, scene.num_frames)))
     return out
 
@@ -83,14 +84,15 @@ def solve(models: list[Path], built: list) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m research.knee_up_views", description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", type=Path, nargs="+", default=[assets.weight("skeleton.onnx")])
+    ap.add_argument("--posture", choices=["knee-up", "kick"], default="knee-up")
     ap.add_argument("--scenes", type=int, default=12)
-    ap.add_argument("--frames", type=int, default=48, help="frames per scene at 30 fps (48: both knees once)")
+    ap.add_argument("--frames", type=int, default=48, help="frames per scene at 30 fps (48: both legs once)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     missing = [m for m in args.models if not m.is_file()]
     if missing:
         ap.error(f"no model file {missing[0]}")
-    built = scenes(args.scenes, args.frames)
+    built = scenes(args.scenes, args.frames, posture=args.posture)
     results = solve(args.models, built)
     print("| model | frames | MPJPE / PA-MPJPE mm / PCK@10cm | knees / ankles mm |\n|---|---|---|---|")
     for m, r in results.items():

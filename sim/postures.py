@@ -14,7 +14,10 @@ performance on the canonical skeleton (``live.motion.clips.Motion``):
   (knees forward), the trunk leaning 20 degrees forward: a deep crouch;
 - ``knee-up``: in place, the knees raised in turn (left, then right, KNEE_UP_PERIOD_S a pair),
   the thigh swung forward up to 100 degrees and the knee bent up to 110, the standing leg
-  straight, the rest of the body as recorded: a knee held toward whoever the performer faces.
+  straight, the rest of the body as recorded: a knee held toward whoever the performer faces;
+- ``kick``: in place, front kicks in turn with the same timing: the thigh swung forward up to
+  KICK_HIP_DEG while the knee first bends (chambered, up to KICK_KNEE_DEG half way) and then
+  straightens, so at the top the whole leg points ahead, the foot about a leg's length in front.
 
 Leg angles are set in the world, about the pelvis's heading (clips tilt their pelvis by up to
 20 degrees, which would tilt the thighs with it), so they mean the same on any clip and body;
@@ -35,12 +38,16 @@ from live.core.skeleton import JOINT_INDEX
 from live.motion.clips import Motion
 from sim.room import Box
 
-POSTURES = ("clip", "in-place", "seated", "crouching", "knee-up")
+POSTURES = ("clip", "in-place", "seated", "crouching", "knee-up", "kick")
 #: knee-up: seconds for the left and then the right knee to rise and fall; the raised thigh's
 #: largest swing forward from hanging and the knee's largest bend, degrees.
 KNEE_UP_PERIOD_S = 1.6
 KNEE_UP_HIP_DEG = 100.0
 KNEE_UP_KNEE_DEG = 110.0
+#: kick: the thigh's largest swing forward (reached with the knee straight) and the knee's
+#: largest bend (half way up), degrees.
+KICK_HIP_DEG = 80.0
+KICK_KNEE_DEG = 100.0
 
 # Rotations about +x in the performer's heading frame, degrees (negative swings a leg bone
 # forward): the hip's of the thigh from hanging straight down, the knee's and ankle's relative
@@ -97,9 +104,9 @@ def apply_posture(motion: Motion, posture: str) -> Motion:
         if legs["lean"]:
             spine = JOINT_INDEX["spine1"]
             rotations[:, spine] = quat_multiply(_x_rotation(legs["lean"]), rotations[:, spine])
-    if posture == "knee-up":
+    if posture in ("knee-up", "kick"):
         root[:, 1] = np.median(root[:, 1])
-        _raise_knees(rotations, motion.fps)
+        _raise_legs(rotations, motion.fps, kick=posture == "kick")
     rotations = rotations.astype(np.float32)
     joints, _ = forward_kinematics(rotations, root, motion.rest_joints)
     return replace(motion, rotations=rotations, root=root.astype(np.float32),
@@ -107,24 +114,27 @@ def apply_posture(motion: Motion, posture: str) -> Motion:
 
 
 def knee_raise(t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(left, right) share in [0, 1] of a full knee raise at times ``t_s`` (T,) seconds: each knee
-    rises and falls smoothly (sin²) in its half of KNEE_UP_PERIOD_S, the left first."""
+    """(left, right) share in [0, 1] of a full knee raise or kick at times ``t_s`` (T,) seconds: each
+    leg rises and falls smoothly (sin²) in its half of KNEE_UP_PERIOD_S, the left first."""
     phase = (np.asarray(t_s, np.float64) % KNEE_UP_PERIOD_S) / (KNEE_UP_PERIOD_S / 2)
     up = np.sin(np.pi * (phase % 1.0)) ** 2
     return np.where(phase < 1.0, up, 0.0), np.where(phase >= 1.0, up, 0.0)
 
 
-def _raise_knees(rotations: np.ndarray, fps: float) -> None:
-    """Set the legs of local rotations (T, 22, 4) in place for ``knee-up``: each thigh swung
-    forward about the pelvis's own heading (so the knee rises where the body faces), the shin
-    bent, the foot level with the shin; the standing leg hangs straight."""
+def _raise_legs(rotations: np.ndarray, fps: float, kick: bool) -> None:
+    """Set the legs of local rotations (T, 22, 4) in place for ``knee-up`` or ``kick``: each thigh
+    swung forward about the pelvis's own heading (so the leg rises where the body faces), the
+    shin bent (a kick straightens it again at the top), the foot in line with the shin; the
+    standing leg hangs straight."""
     pelvis = rotations[:, 0]  # the root's local rotation is its global one
     facing = yaw_quat(yaw_of(pelvis))
     shares = knee_raise(np.arange(len(rotations)) / fps)
     for side, share in zip(("left", "right"), shares):
-        thigh = quat_multiply(facing, _x_rotation(-KNEE_UP_HIP_DEG * share))
+        hip = KICK_HIP_DEG * share if kick else KNEE_UP_HIP_DEG * share
+        knee = KICK_KNEE_DEG * np.sin(np.pi * share) if kick else KNEE_UP_KNEE_DEG * share
+        thigh = quat_multiply(facing, _x_rotation(-hip))
         rotations[:, JOINT_INDEX[f"{side}_hip"]] = quat_multiply(quat_conjugate(pelvis), thigh)
-        rotations[:, JOINT_INDEX[f"{side}_knee"]] = _x_rotation(KNEE_UP_KNEE_DEG * share)
+        rotations[:, JOINT_INDEX[f"{side}_knee"]] = _x_rotation(knee)
         rotations[:, JOINT_INDEX[f"{side}_ankle"]] = _x_rotation(0.0)
         rotations[:, JOINT_INDEX[f"{side}_foot"]] = _x_rotation(0.0)
 
@@ -147,4 +157,4 @@ def seat_boxes(joints: np.ndarray) -> tuple[Box, ...]:
     return seat, back
 
 
-__all__ = ["POSTURES", "KNEE_UP_PERIOD_S", "apply_posture", "knee_raise", "remove_travel", "seat_boxes"]
+__all__ = ["POSTURES", "KICK_HIP_DEG", "KICK_KNEE_DEG", "KNEE_UP_PERIOD_S", "apply_posture", "knee_raise", "remove_travel", "seat_boxes"]

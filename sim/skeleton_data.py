@@ -133,7 +133,7 @@ class Job:
     realism: bool = False
     edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
     hard_views: bool = False  # realism views drawn with sim.sensor_realism.HARD_VIEWS
-    knee_up: bool = False  # a realism job whose performer raises the knees in turn (sim.postures)
+    raised_leg: str = ""  # a realism job performed in sim.postures' "knee-up" or "kick" posture
 
     @property
     def view_odds(self):
@@ -145,12 +145,13 @@ class Job:
 def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAMES_PER_JOB,
               anny: list[str] | None = None, anny_share: float = 0.0, realism: bool = False,
               edge_jump_share: float | None = None, hard_share: float = 0.0,
-              knee_up_share: float = 0.0) -> list[Job]:
+              knee_up_share: float = 0.0, kick_share: float = 0.0) -> list[Job]:
     """The jobs that make ``n_samples`` samples (a few more are planned; failures are dropped).
     Training jobs take a body of ``anny`` (on-demand phenotypes, ``anny_phenotypes``) with
     probability ``anny_share``, else a training preset. "val_real" jobs always have realism.
-    hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``; knee_up_share: the
-    share of realism training jobs whose performer raises the knees in turn (``knee-up``)."""
+    hard_share: the share of realism training jobs drawn with ``HARD_VIEWS``; knee_up_share,
+    kick_share: the shares of realism training jobs whose performer raises the knees in turn
+    (``knee-up``) or kicks to the front in turn (``kick``)."""
     from live.body.library import list_presets
     from sim.sensor_realism import HARD_VIEWS, USUAL_VIEWS
 
@@ -178,10 +179,13 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         body = bodies[int(rng.integers(len(bodies)))]
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
-        # From a stream of its own: with or without knee raises, the jobs are the same.
-        knee_up = bool(realism and split == "train" and knee_up_share > 0 and knee_rng.random() < knee_up_share)
+        # From a stream of its own: with or without raised legs, the jobs are the same.
+        raised_leg = ""
+        if realism and split == "train" and knee_up_share + kick_share > 0:
+            u = knee_rng.random()
+            raised_leg = "knee-up" if u < knee_up_share else "kick" if u < knee_up_share + kick_share else ""
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard, knee_up))
+                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard, raised_leg))
     return jobs
 
 
@@ -273,10 +277,10 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     if job.realism:
         from sim.sensor_realism import realism_motion
 
-        if job.knee_up:
+        if job.raised_leg:
             from sim.postures import apply_posture
 
-            motion, posture = apply_posture(motion, "knee-up"), "knee-up"
+            motion, posture = apply_posture(motion, job.raised_leg), job.raised_leg
         else:
             motion, posture = realism_motion(motion, job.seed, job.view_odds)
     root, joints = grounded_joints(motion, body)
@@ -357,12 +361,14 @@ def view_conditions(camera_to_world: np.ndarray, posture: str, extras) -> dict:
 # ---------------------------------------------------------------------------- the dataset
 def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share: float = 0.0,
                 realism: bool = False, edge_jump_share: float | None = None, hard_share: float = 0.0,
-                knee_up_share: float = 0.0) -> Path:
+                knee_up_share: float = 0.0, kick_share: float = 0.0) -> Path:
     fields = {"split": split, "n": n_samples, "seed": seed, "v": 5, "val_subjects": sorted(VAL_SUBJECTS)}
     if hard_share > 0:
         fields.update(hard_share=hard_share)
     if knee_up_share > 0:
         fields.update(knee_up_share=knee_up_share)
+    if kick_share > 0:
+        fields.update(kick_share=kick_share)
     if edge_jump_share is not None:
         fields.update(edge_jump_share=edge_jump_share)
     if realism or split == "val_real":
@@ -378,7 +384,8 @@ def _cache_path(split: str, n_samples: int, seed: int, anny: int = 0, anny_share
 def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache: bool = True,
              progress: bool = False, anny: int = 0, anny_share: float = 0.0,
              realism: bool = False, edge_jump_share: float | None = None,
-             hard_share: float = 0.0, knee_up_share: float = 0.0) -> dict[str, np.ndarray]:
+             hard_share: float = 0.0, knee_up_share: float = 0.0,
+             kick_share: float = 0.0) -> dict[str, np.ndarray]:
     """The samples of a split (cached under .cache/skeleton_data).
 
     Returns points (S,512,3) float32 person frame, joints (S,22,3) float32 person frame,
@@ -390,18 +397,22 @@ def generate(split: str, n_samples: int, seed: int = 0, workers: int = 2, cache:
     realism: training jobs as users' sensors see people (module doc; "val_real" always).
     edge_jump_share: the finder leaves depth-edge pixels out of the sample (PreprocessConfig).
     hard_share: the share of realism training jobs weighted toward hard views (``HARD_VIEWS``).
-    knee_up_share: the share of realism training jobs raising the knees in turn (``knee-up``)."""
+    knee_up_share, kick_share: the shares of realism training jobs raising the knees in turn
+    (``knee-up``) and kicking to the front in turn (``kick``)."""
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
     hard_share = hard_share if realism else 0.0
     knee_up_share = knee_up_share if realism else 0.0
-    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share, hard_share, knee_up_share)
+    kick_share = kick_share if realism else 0.0
+    path = _cache_path(split, n_samples, seed, anny, anny_share, realism, edge_jump_share, hard_share, knee_up_share,
+                       kick_share)
     if cache and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
     phenotypes = anny_phenotypes(anny, seed) if anny else None
     jobs = plan_jobs(split, n_samples, seed, anny=phenotypes, anny_share=anny_share, realism=realism,
-                     edge_jump_share=edge_jump_share, hard_share=hard_share, knee_up_share=knee_up_share)
+                     edge_jump_share=edge_jump_share, hard_share=hard_share, knee_up_share=knee_up_share,
+                     kick_share=kick_share)
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs if j.body.startswith("anny:")}), progress)
     data = _concat(jobs, run_jobs(run_job, jobs, workers, f"data {split}" if progress else None, chunksize=2),

@@ -151,6 +151,31 @@ def test_knee_up_raises_each_knee_in_turn_toward_where_the_body_faces(shared_bvh
     assert feet.max() < 0.15  # one foot stays on the floor
 
 
+
+def test_kick_swings_each_leg_straight_out_in_front_at_the_top(shared_bvh):
+    from live.core.heading import body_heading
+    from sim.postures import KICK_HIP_DEG, KNEE_UP_PERIOD_S
+
+    motion = load_motion(shared_bvh / "mb_08_07.bvh")
+    scene = SyntheticScene.build(motion, load_body("teen_girl_14y"), fps=30, posture="kick")
+    j = scene.joints
+    t = np.arange(len(j)) / 30.0
+    facing = body_heading(j)
+    for side, f in (("left", 0.25), ("right", 0.75)):
+        top = np.abs(t % KNEE_UP_PERIOD_S - f * KNEE_UP_PERIOD_S) < 0.02
+        half = np.abs(t % KNEE_UP_PERIOD_S - (f - 0.125) * KNEE_UP_PERIOD_S) < 0.02
+        hip, knee, ankle = (j[:, J[f"{side}_{p}"]] for p in ("hip", "knee", "ankle"))
+        thigh, shin = knee - hip, ankle - knee
+        cos = np.sum(thigh * shin, axis=1) / np.linalg.norm(thigh, axis=1) / np.linalg.norm(shin, axis=1)
+        bend = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        assert bend[top].max() < 5 and bend[half].min() > 45  # straight at the top, chambered on the way
+        leg = ankle - hip
+        ahead = leg[:, 0] * np.sin(facing) + leg[:, 2] * np.cos(facing)
+        assert ahead[top].min() > 0.6 * np.linalg.norm(leg[top], axis=1).min()  # pointing ahead
+        lift = np.degrees(np.arctan2(leg[top, 1], ahead[top]))
+        assert np.all(np.abs(lift - (KICK_HIP_DEG - 90)) < 12)  # about KICK_HIP_DEG from hanging
+    assert j[:, [J["left_ankle"], J["right_ankle"]], 1].min(axis=1).max() < 0.15  # one foot down
+
 def test_synth_command_pitch_posture_floor_and_hidden_extrinsics(tmp_path, shared_bvh):
     from live.app.cli import main
 

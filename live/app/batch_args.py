@@ -42,7 +42,7 @@ SYNTH_OPTIONS: tuple[tuple[str, dict], ...] = (
     ("--height", {"type": arg.camera_height, "help": "camera height above the floor, m (default 1.2)"}),
     ("--yaw", {"type": arg.angle_degrees, "help": "camera angle around the performer, degrees (default 0)"}),
     ("--pitch", {"type": float, "metavar": "DEG", "help": "camera tilt, degrees, negative looks down"}),
-    ("--posture", {"choices": ["clip", "in-place", "seated", "crouching", "knee-up"], "help": "see `livecap synth`"}),
+    ("--posture", {"choices": ["clip", "in-place", "seated", "crouching", "knee-up", "kick"], "help": "see `livecap synth`"}),
     ("--floor", {"choices": ["seen", "none"], "help": "none: the sensor returns nothing from the floor"}),
     ("--hide-extrinsics", {"action": "store_true", "help": "the depth stream carries an identity camera_to_world"}),
     ("--no-noise", {"action": "store_true", "help": "ideal depth (no sensor noise)"}),

@@ -193,9 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="camera angle around the performer, degrees (0 = in front)")
     p.add_argument("--pitch", type=float, default=None, metavar="DEG", help="camera tilt in degrees, negative looks "
                    "down, facing the performance centre (default: aimed at the centre, 1 m above the floor)")
-    p.add_argument("--posture", choices=["clip", "in-place", "seated", "crouching", "knee-up"], default="clip",
+    p.add_argument("--posture", choices=["clip", "in-place", "seated", "crouching", "knee-up", "kick"], default="clip",
                    help="the clip as recorded (default), in place, seated on a chair, crouching, or in place "
-                   "raising the knees in turn")
+                   "raising the knees or kicking to the front in turn")
     p.add_argument("--floor", choices=["seen", "none"], default="seen",
                    help="none: the sensor returns nothing from the floor (a dark or shiny floor)")
     p.add_argument("--hide-extrinsics", action="store_true", help="the depth stream carries an identity "

@@ -253,6 +253,9 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--knee-up-share", type=float, default=0.0, metavar="S",
                    help="share of the realism training jobs whose performer raises the knees in turn, a knee held "
                         "toward the camera (sim.postures knee-up): the clips hold few limbs seen end-on")
+    p.add_argument("--kick-share", type=float, default=0.0, metavar="S",
+                   help="share of the realism training jobs whose performer kicks to the front in turn, a leg "
+                        "pointing at the camera (sim.postures kick)")
     p.add_argument("--clean", type=int, default=0, metavar="N",
                    help="N more training samples without realism (the default sensor model, extrinsics given; "
                         "seed + 10), mixed in so the clean views stay as good")
@@ -294,7 +297,8 @@ def main(argv: list[str] | None = None) -> dict:
                             cache=not args.no_cache, anny=anny, anny_share=args.anny_share,
                             realism=args.realism, edge_jump_share=args.edge_share,
                             hard_share=args.hard_share if split == "train" else 0.0,
-                            knee_up_share=args.knee_up_share if split == "train" else 0.0)
+                            knee_up_share=args.knee_up_share if split == "train" else 0.0,
+                            kick_share=args.kick_share if split == "train" else 0.0)
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12)), ("val_real", n_val)))}
     if args.clean and args.realism:
