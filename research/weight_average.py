@@ -7,7 +7,9 @@ Writes DIR/skeleton.onnx, (1 - alpha) x BASE's weights + alpha x TUNED's
 network, preprocessing, recipe, data and training) with "weight_average" (alpha, both parents'
 sha256 and cards' commands), this command as "command" and "metrics" measured again on the card's validation
 sets (the 1200-sample sets research.measure_skeleton draws, sampled by the shipped finder).
-The stage takes temporal models only when trained behind this very file: train them next.
+The stage takes temporal models only when trained behind this very file or validated behind it:
+train them next, or measure the shipped ones behind it (`python -m research.validate_temporal
+--regressor DIR/skeleton.onnx --trained-behind BASE.onnx --card`).
 """
 
 from __future__ import annotations

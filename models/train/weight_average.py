@@ -44,7 +44,7 @@ def average_weights(base: onnx.ModelProto, tuned: onnx.ModelProto, alpha: float)
         a = numpy_helper.to_array(tensor)
         b = numpy_helper.to_array(tuned_weights[name]) if name in tuned_weights else None
         if b is None or a.shape != b.shape or a.dtype != b.dtype:
-            raise UserInputError(f"the two models are not the same network (weight {name!r} differs in shape)")
+            raise UserInputError(f"the two models are not the same network (weight {name!r} missing or of another shape)")
         if a.dtype.kind != "f":
             if not np.array_equal(a, b):
                 raise UserInputError(f"the two models are not the same network (constant {name!r} differs)")
