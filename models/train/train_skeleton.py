@@ -296,9 +296,8 @@ def main(argv: list[str] | None = None) -> dict:
     data = {split: generate(split, n, seed=args.seed + k, workers=args.workers, progress=progress,
                             cache=not args.no_cache, anny=anny, anny_share=args.anny_share,
                             realism=args.realism, edge_jump_share=args.edge_share,
-                            hard_share=args.hard_share if split == "train" else 0.0,
-                            knee_up_share=args.knee_up_share if split == "train" else 0.0,
-                            kick_share=args.kick_share if split == "train" else 0.0)
+                            hard_share=args.hard_share, knee_up_share=args.knee_up_share,
+                            kick_share=args.kick_share)  # generate() draws them for training jobs only
             for k, (split, n) in enumerate((("train", n_train), ("val", n_val),
                                             ("val_upper", max(n_val // 3, 12)), ("val_real", n_val)))}
     if args.clean and args.realism:
