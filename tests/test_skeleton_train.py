@@ -74,7 +74,7 @@ def test_refinement_stage_votes_from_each_joints_nearest_points():
 
 
 def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
-    from models.skeleton.runtime import DEFAULT_MODEL, SkeletonStage
+    from models.skeleton.runtime import DEFAULT_MODEL, SkeletonRegressor, SkeletonStage
     from models.skeleton.temporal import file_sha256
     from models.train.train_skeleton_temporal import main
 
@@ -85,6 +85,8 @@ def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
     assert card["onnx_max_abs_diff_m"] < 5e-3
     assert [name.split("/")[1] for name in card["quantization"]["layers"]] == ["mlp"] * 4
     assert card["regressor_sha256"] == file_sha256(DEFAULT_MODEL)
+    # Sequences sampled as the stage samples them for that regressor (its depth-edge test).
+    assert card["recipe"]["edge_jump_share"] == SkeletonRegressor(DEFAULT_MODEL).edge_jump_share is not None
     assert card["data"]["train"]["found_frames"] > 0
     assert not set(card["data"]["val"]["bodies"]) & set(card["data"]["train"]["bodies"])
     val = card["metrics"]["val"]["on_performer"]

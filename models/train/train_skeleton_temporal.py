@@ -327,7 +327,7 @@ def validation_results(val: dict, ex: dict, raw_world: np.ndarray, methods: dict
 
 
 def main(argv: list[str] | None = None) -> dict:
-    from models.skeleton.runtime import DEFAULT_MODEL
+    from models.skeleton.runtime import DEFAULT_MODEL, SkeletonRegressor
     from models.skeleton.temporal import file_sha256, temporal_model_path
     from sim.skeleton_data import VAL_SUBJECTS
     from sim.skeleton_sequences import SEQUENCE_FPS, SEQUENCE_FRAMES, generate_sequences
@@ -371,16 +371,21 @@ def main(argv: list[str] | None = None) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     progress = not args.no_progress
     t0 = time.monotonic()
+    # The sequences sampled as the stage samples them for this regressor (its card's depth-edge
+    # test): the model learns the errors the regressor makes on what the runtime gives it.
+    edges = SkeletonRegressor(args.regressor).edge_jump_share
     data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress,
-                                        realism=args.realism),
-            "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress)}
+                                        realism=args.realism, edge_jump_share=edges),
+            "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress,
+                                      edge_jump_share=edges)}
     if n_anny:  # presets-only sequences, then Anny-mixed ones: the first set's cache stays valid
         from models.train.anny_bodies import ensure_built
         from sim.skeleton_data import anny_phenotypes
 
         ensure_built(anny_phenotypes(args.anny, args.seed + 2), progress)  # into the body cache, once
         more = generate_sequences("train", n_anny, seed=args.seed + 2, workers=args.workers, progress=progress,
-                                  anny=args.anny, anny_share=args.anny_share, realism=args.realism)
+                                  anny=args.anny, anny_share=args.anny_share, realism=args.realism,
+                                  edge_jump_share=edges)
         data["train"] = {k: np.concatenate([data["train"][k], more[k]]) for k in data["train"]}
     examples, per_frame = {}, {}
     for split, d in data.items():
@@ -414,7 +419,9 @@ def main(argv: list[str] | None = None) -> dict:
                    "augmentation": "mirror (x -> -x, left/right swapped)",
                    # Whether the training sequences were drawn as users' sensors see people
                    # (sim.sensor_realism): models trained with and without it differ by millimetres.
-                   "realism": bool(args.realism)},
+                   "realism": bool(args.realism),
+                   # The finder's depth-edge test the sequences were sampled with (the regressor's).
+                   "edge_jump_share": edges},
         "training": log, "data_seconds": data_seconds,
         "data": {split: {"sequences": int(len(d["found"])), "frames_per_sequence": SEQUENCE_FRAMES,
                          "found_frames": int(d["found"].sum()), "clips": int(len(np.unique(d["clip"]))),
