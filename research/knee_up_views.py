@@ -3,8 +3,8 @@
 Held-out clips on the held-out bodies, performed in sim.postures' knee-up posture (the left and
 then the right knee raised in turn) or its kick posture (front kicks in turn), seen from in front
 (within 45 degrees of where the performer faces, 1.8-3.5 m away, 0.7-1.5 m high, level) by each
-sensor model in turn. Every frame goes through the skeleton stage without its temporal model (per-frame joints, as
-research.compare_skeleton scores them), extrinsics given:
+sensor model in turn. Every frame goes through the skeleton stage without its temporal model
+(per-frame joints, as research.compare_skeleton scores them), extrinsics given:
 
     python -m research.knee_up_views [--models A.onnx B.onnx ...] [--posture knee-up|kick] [--scenes 12]
                                       [--frames 48] [--json FILE]

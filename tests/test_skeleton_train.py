@@ -86,7 +86,8 @@ def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
     assert [name.split("/")[1] for name in card["quantization"]["layers"]] == ["mlp"] * 4
     assert card["regressor_sha256"] == file_sha256(DEFAULT_MODEL)
     # Sequences sampled as the stage samples them for that regressor (its depth-edge test).
-    assert card["recipe"]["edge_jump_share"] == SkeletonRegressor(DEFAULT_MODEL).edge_jump_share is not None
+    edges = SkeletonRegressor(DEFAULT_MODEL).edge_jump_share
+    assert edges is not None and card["recipe"]["edge_jump_share"] == edges
     assert card["data"]["train"]["found_frames"] > 0
     assert not set(card["data"]["val"]["bodies"]) & set(card["data"]["train"]["bodies"])
     val = card["metrics"]["val"]["on_performer"]
