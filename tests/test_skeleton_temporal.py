@@ -216,3 +216,55 @@ def test_history_starts_again_where_the_frames_jump_to_something_else(lag):
         assert a.t_ns == b.t_ns and np.array_equal(a.joints, b.joints)
     # A lagging model still owes, and gives, the figure's last frames before the jump.
     assert [o.t_ns for o in outs if o is not None and o.t_ns < t[12]] == [int(x) for x in t[12 - lag:12]]
+
+
+def _standing():
+    from live.body.library import load_body
+
+    rest = np.asarray(load_body("adult_male_average").rest_joints, np.float64)
+    return rest - rest[0] * np.array([1.0, 0.0, 1.0])  # the pelvis above the person frame's origin
+
+
+def _turned(joints, deg):
+    a = np.radians(deg)
+    turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
+    return (joints - joints[0]) @ turn.T + joints[0]
+
+
+@pytest.mark.parametrize("lag", [0, 2])
+def test_a_stream_of_unrelated_stills_is_read_frame_by_frame(lag):
+    """A folder of stills (one pose each, at about one place) is no take: once most recent frames
+    break from the one before, each frame comes out as the regressor read it, the last ones of
+    a lagging model's stream too."""
+    from models.skeleton.temporal import BREAK_POSE_M, STILLS_BREAKS, TemporalRefiner, pose_change, temporal_model_path
+
+    rng = np.random.default_rng(5)
+    standing = _standing()
+    stills = [_turned(standing, 100.0 * k) + rng.normal(0, 0.05, (22, 3)) * [1, 0, 1] for k in range(24)]
+    assert all(pose_change(b, a) > BREAK_POSE_M for a, b in zip(stills, stills[1:]))
+    refiner, conf = TemporalRefiner(temporal_model_path(lag)), np.ones(22)
+    t = 1_000_000_000 + np.round(np.arange(24) * 1e9 / 30).astype(np.int64)
+    outs = [refiner(int(t[k]), stills[k], conf, np.eye(4)) for k in range(24)] + refiner.flush()
+    outs = [o for o in outs if o is not None]
+    assert [o.t_ns for o in outs] == t.tolist()
+    # Frame STILLS_BREAKS is the first after STILLS_BREAKS breaks; a lagging model gives it, and
+    # those it still owed then, lag frames later, when it knows.
+    first = STILLS_BREAKS - lag
+    assert all(np.array_equal(out.joints, stills[k]) for k, out in enumerate(outs) if k >= first)
+    assert refiner.stills == 24 - first
+
+
+@pytest.mark.parametrize("lag", [0, 2])
+def test_a_take_with_frames_read_turned_is_not_taken_for_stills(lag):
+    """A performer read turned on a frame now and then breaks the pose as stills do, but not on
+    most frames: the temporal model keeps smoothing."""
+    from models.skeleton.temporal import TemporalRefiner, temporal_model_path
+
+    standing = _standing()
+    refiner, conf = TemporalRefiner(temporal_model_path(lag)), np.ones(22)
+    t = 1_000_000_000 + np.round(np.arange(40) * 1e9 / 30).astype(np.int64)
+    for k in range(40):
+        pose = standing + 0.003 * k * np.array([1.0, 0.0, 0.0])
+        refiner(int(t[k]), _turned(pose, 180.0) if k % 5 == 4 else pose, conf, np.eye(4))  # every fifth frame
+    refiner.flush()
+    assert refiner.stills == 0

@@ -168,6 +168,7 @@ class SkeletonStage:
         out["flip_recoveries"] = self.flips.recoveries
         out["temporal_restarts"] = 0 if self.temporal is None else self.temporal.restarts
         out["temporal_jumps"] = 0 if self.temporal is None else self.temporal.jumps
+        out["temporal_stills"] = 0 if self.temporal is None else self.temporal.stills
         out.update({f"finder_{k}": v for k, v in asdict(self.finder.counters).items()})
         return out
 

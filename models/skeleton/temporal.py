@@ -18,11 +18,15 @@ later (at 30 fps, lag 2 = 67 ms) with much less jitter. Its output is stamped wi
 the frame it estimates, the newest frame at least (L - 1/2) / fps old, so outputs keep the input
 frames' timestamps; the first frames of a take get no skeleton, and the last L of a stream come
 from ``flush()`` once it has ended (the pipeline drains them).
+
+A folder of unrelated stills is no take: when most recent frames break from the one before
+(``STILLS_BREAKS``), each frame is given as the regressor read it.
 """
 
 from __future__ import annotations
 
 import hashlib
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,6 +53,20 @@ RESTART_FRAMES = 2
 #: lagging model still estimates the frames before it as before, its look-ahead reaching past the
 #: jump: the performer's frames pull the last ones on the clutter toward the truth).
 RESTART_JUMP_M = 0.5
+#: Frames that do not continue the one before: a jump (RESTART_JUMP_M), or a pose (joints less
+#: the pelvis) farther than BREAK_POSE_M (m, mean over joints, per elapsed sample period) from the
+#: last frame's. A moving body's per-frame estimates change by 2-3 cm a frame (median over
+#: held-out takes), unrelated stills by 14 cm. When STILLS_BREAKS of the last STILLS_WINDOW frames
+#: break so, the stream is a folder of stills, not a take (a dataset's test frames from many
+#: recordings, replayed as one 30 fps sequence): each frame is given as read, with nothing before
+#: or after it to smooth with, until fewer than STILLS_KEEP of them break (similar stills in a
+#: row do not end it). On held-out takes of depth as users' sensors give it, 0.7 % of the frames
+#: are given so (runs of a body read turned and back), on clean takes none; on stills all but
+#: the first dozen or so (research.unrelated_frames).
+BREAK_POSE_M = 0.10
+STILLS_WINDOW = 12
+STILLS_BREAKS = 8
+STILLS_KEEP = 4
 
 
 def temporal_model_path(lag: int = 0, regressor_path: Path | None = None) -> Path:
@@ -146,6 +164,7 @@ class TemporalRefiner:
         self._input = inputs[0].name
         self.restarts = 0  # histories dropped because the model strayed from the frame (RESTART_DEVIATION_M)
         self.jumps = 0  # histories dropped because the frame jumped to something else (RESTART_JUMP_M)
+        self.stills = 0  # frames given as read in a stream of stills (STILLS_BREAKS)
         self.reset()
 
     @property
@@ -166,6 +185,8 @@ class TemporalRefiner:
         self._emitted: int | None = None
         self._to_world: np.ndarray | None = None
         self._straying = 0
+        self._breaks: deque[bool] = deque(maxlen=STILLS_WINDOW)  # per frame: did it break from the last?
+        self._stills = False  # the stream is stills (STILLS_BREAKS)
 
     def _append(self, t_ns: int, joints_world: np.ndarray, confidence: np.ndarray) -> None:
         """Add an observation; drop what the window can no longer reach (all but one entry older
@@ -205,8 +226,14 @@ class TemporalRefiner:
         t_ns = int(t_ns)
         if self._end > self._start and t_ns <= self._times[self._end - 1]:
             self.reset()  # time went backwards (a new replay): start over
-        jump = self._end > self._start and \
-            np.linalg.norm(joints_world - self._joints[self._end - 1], axis=1).mean() > RESTART_JUMP_M
+        jump = broke = False
+        if self._end > self._start:
+            last = self._joints[self._end - 1]
+            jump = np.linalg.norm(joints_world - last, axis=1).mean() > RESTART_JUMP_M
+            periods = max(1.0, (t_ns - int(self._times[self._end - 1])) * 1e-9 * self.fps)
+            broke = jump or pose_change(joints_world, last) > BREAK_POSE_M * periods
+            self._breaks.append(broke)
+            self._stills = sum(self._breaks) >= (STILLS_KEEP if self._stills else STILLS_BREAKS)
         self._append(t_ns, joints_world, confidence)
         if jump:
             self.jumps += 1
@@ -218,6 +245,8 @@ class TemporalRefiner:
         if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
             return None
         at = self._start + k
+        if self._stills:
+            return self._as_read(at)
         out = self._estimate(at)
         raw = self._joints[at]
         strays = self.lag == 0 and np.linalg.norm(out.joints - raw, axis=1).mean() > RESTART_DEVIATION_M
@@ -243,7 +272,15 @@ class TemporalRefiner:
             return []
         times = self._times[self._start:self._end]
         first = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
-        return [self._estimate(at) for at in range(self._start + first, self._end)]
+        give = self._as_read if self._stills else self._estimate
+        return [give(at) for at in range(self._start + first, self._end)]
+
+    def _as_read(self, at: int) -> RefinedSkeleton:
+        """The observation at index ``at`` as the regressor read it (its history holds other
+        people and poses)."""
+        self.stills += 1
+        self._emitted = int(self._times[at])
+        return RefinedSkeleton(t_ns=self._emitted, joints=self._joints[at].copy(), confidence=self._conf[at].copy())
 
     def _estimate(self, at: int) -> RefinedSkeleton:
         """The model's estimate of the observation at index ``at``, in the newest frame's person
@@ -263,9 +300,15 @@ class TemporalRefiner:
                                confidence=self._conf[at].copy())
 
 
+def pose_change(joints: np.ndarray, before: np.ndarray) -> float:
+    """Mean distance (m) between two skeletons (22, 3) with their pelvises put together: how far
+    the pose changed, wherever the body went."""
+    return float(np.linalg.norm((joints - joints[0]) - (before - before[0]), axis=1).mean())
+
+
 def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 __all__ = ["TemporalRefiner", "RefinedSkeleton", "TemporalWindow", "sample_history", "to_person_frame", "feature_size",
-           "file_sha256", "temporal_model_path", "DEFAULT_TEMPORAL_MODEL"]
+           "file_sha256", "pose_change", "temporal_model_path", "DEFAULT_TEMPORAL_MODEL"]
