@@ -268,3 +268,13 @@ def test_a_take_with_frames_read_turned_is_not_taken_for_stills(lag):
         refiner(int(t[k]), _turned(pose, 180.0) if k % 5 == 4 else pose, conf, np.eye(4))  # every fifth frame
     refiner.flush()
     assert refiner.stills == 0
+
+
+def test_stage_counts_the_frames_it_gave_as_stills():
+    from models.skeleton.runtime import SkeletonStage
+
+    stage = SkeletonStage()
+    assert stage.counters["temporal_stills"] == 0
+    stage.temporal.stills = 3  # as the refiner counts them
+    assert stage.counters["temporal_stills"] == 3
+    assert SkeletonStage(temporal=False).counters["temporal_stills"] == 0
