@@ -278,3 +278,17 @@ def test_stage_counts_the_frames_it_gave_as_stills():
     stage.temporal.stills = 3  # as the refiner counts them
     assert stage.counters["temporal_stills"] == 3
     assert SkeletonStage(temporal=False).counters["temporal_stills"] == 0
+
+
+@pytest.mark.skipif(not LAG2_MODEL.is_file(), reason="no shipped lag-2 temporal model")
+def test_lagging_model_gives_every_frame_when_the_finder_missed_one():
+    """Frames the finder missed get no skeleton; the ones it found all do, in order, the frames
+    owed at a gap a frame later each."""
+    from models.skeleton.temporal import TemporalRefiner
+
+    rng = np.random.default_rng(6)
+    refiner = TemporalRefiner(LAG2_MODEL)
+    t30 = 1_000_000_000 + np.round(np.arange(16) * 1e9 / 30).astype(np.int64)
+    found = np.delete(t30, [5, 9, 10])  # nobody in view on three frames
+    got = [g for g in _feed(refiner, found, rng) + refiner.flush() if g is not None]
+    assert [g.t_ns for g in got] == found.tolist()

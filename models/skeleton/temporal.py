@@ -240,9 +240,12 @@ class TemporalRefiner:
             self._cut = self._end - 1
         self._to_world = to_world
         times = self._times[self._start:self._end]
-        # The frame to estimate: the newest one at least (lag - 1/2) samples old (lag 0: this one).
-        k = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
-        if k < 0 or (self._emitted is not None and times[k] <= self._emitted):
+        # The frame to estimate: the oldest one not yet estimated, once it is at least (lag - 1/2)
+        # samples old (lag 0: this one). Where the finder missed a frame, the frames owed are
+        # given one a call, a frame later each, until the missed frame's turn comes: none is skipped.
+        due = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
+        k = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
+        if due < 0 or k > due:
             return None
         at = self._start + k
         if self._stills:
