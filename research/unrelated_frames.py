@@ -20,11 +20,11 @@ occluders, bodies read turned): how often a take is taken for stills, and what t
 from __future__ import annotations
 
 import argparse
-import threading
 
 import numpy as np
 
 from live.core import assets
+from live.core.metrics import mpjpe, pck
 
 #: Held-out clips and bodies (sim.skeleton_data's split), one session each.
 CLIPS = ("cc_007_03", "mb_08_01", "mb_12_03", "mb_16_15", "cc_007_09", "mb_08_07", "daz_16_36", "mb_16_47")
@@ -33,15 +33,15 @@ MODES = ("per frame", "online", "lag 2")
 PERIOD_NS = 33_333_333
 
 
-def sessions(camera: str, one_place: bool = False) -> list[list[tuple]]:
-    """Per session: [(DepthFrame, true joints (22, 3) in the camera frame)] in stream order.
-    Each session has its own camera placement, or (``one_place``) all share one, 3 m in front,
-    and the performers move in place (sim.postures ``in-place``): stills that differ only in
-    body and pose, as a dataset recorded in one room gives them."""
+def sessions(camera: str, one_place: bool = False) -> list[tuple[list[tuple], np.ndarray]]:
+    """Per session: its (DepthFrame, GroundTruth) pairs in stream order and its true
+    camera_to_world (the depth frames withhold it). Each session has its own camera placement, or
+    (``one_place``) all share one, 3 m in front, and the performers move in place (sim.postures
+    ``in-place``): stills that differ only in body and pose, as a dataset recorded in one room
+    gives them."""
     import math
 
-    from live.app.sources import open_replay
-    from live.core.frames import DepthFrame, GroundTruth
+    from live.evaluation.skeleton import read_eval_session
     from sim.synth import CameraPlacement, SynthOptions, synthesize
 
     cache = assets.cache_dir() / "unrelated_frames"
@@ -55,54 +55,50 @@ def sessions(camera: str, one_place: bool = False) -> list[list[tuple]]:
             synthesize(SynthOptions(motion=str(assets.bvh_dir() / f"{clip}.bvh"), body=BODIES[i % len(BODIES)],
                                     camera=camera, seconds=4.0, seed=i, placement=placement, hide_extrinsics=True,
                                     posture="in-place" if one_place else "clip"), path)
-        source = open_replay(path, speed=None)
-        c2w = next(s.meta["camera_to_world"] for s in source.streams() if s.kind == "gt")
-        items: list = []
-        source.run(items.append, threading.Event())
-        truth = {x.t_ns: x.joints for x in items if isinstance(x, GroundTruth)}
-        w2c = np.linalg.inv(np.asarray(c2w, np.float64))
-        out.append([(d, truth[d.t_ns] @ w2c[:3, :3].T + w2c[:3, 3]) for d in items
-                    if isinstance(d, DepthFrame) and d.t_ns in truth])
+        session = read_eval_session(path)
+        out.append((session.pairs, session.true_camera_to_world))
     return out
 
 
 def run_stage(frames: list[tuple], mode: str) -> tuple[list[tuple[np.ndarray, np.ndarray]], dict]:
-    """The frames through a fresh stage in one stream at 30 fps: [(estimate, truth)] in the
-    camera frame, and the stage's counters."""
-    from live.core.frames import DepthFrame, FrameResult
+    """Frames ((DepthFrame, GroundTruth, true camera_to_world) each) through a fresh stage in one
+    stream at 30 fps: [(estimate, truth in the world the stage solved in)], and its counters."""
+    from dataclasses import replace
+
+    from live.core.frames import FrameResult
+    from live.evaluation.skeleton import truth_in_solved_frame
     from models.skeleton.runtime import SkeletonStage
 
     stage = SkeletonStage(temporal=False, filter=False, flip_guard=False) if mode == "per frame" \
         else SkeletonStage(lag=2 if mode == "lag 2" else 0)
     truth, skeletons = {}, []
-    for k, (depth, joints) in enumerate(frames):
-        frame = DepthFrame(t_ns=k * PERIOD_NS, sensor=depth.sensor, camera_to_world=depth.camera_to_world,
-                           points=depth.points, depth_mm=depth.depth_mm, intrinsics=depth.intrinsics)
-        truth[frame.t_ns] = joints
-        result = FrameResult(t_ns=frame.t_ns, depth=frame)
+    for k, (depth, gt, true_c2w) in enumerate(frames):
+        result = FrameResult(t_ns=k * PERIOD_NS, depth=replace(depth, t_ns=k * PERIOD_NS))
+        truth[result.t_ns] = (gt.joints, true_c2w)
         stage.process(result)
         if result.skeleton is not None:
             skeletons.append(result.skeleton)
     skeletons += stage.flush()
-    pairs = []
-    for sk in skeletons:
-        w2c = np.linalg.inv(np.asarray(sk.camera_to_world, np.float64))
-        pairs.append((sk.joints @ w2c[:3, :3].T + w2c[:3, 3], truth[sk.t_ns]))
-    return pairs, stage.counters
+    return [(sk.joints, truth_in_solved_frame(*truth[sk.t_ns][:1], sk.camera_to_world, truth[sk.t_ns][1]))
+            for sk in skeletons], stage.counters
+
+
+def root_aligned(est: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
+    """MPJPE (m) and PCK@10cm of (..., 22, 3) estimates with their pelvises moved onto the truth's."""
+    aligned = est - est[..., :1, :] + gt[..., :1, :]
+    return mpjpe(aligned, gt), pck(aligned, gt, 0.1)
 
 
 def scores(pairs: list[tuple[np.ndarray, np.ndarray]], frames: int, counters: dict) -> str:
-    est = np.stack([p for p, _ in pairs])
-    gt = np.stack([t for _, t in pairs])
-    err = np.linalg.norm(est - est[:, :1] + gt[:, :1] - gt, axis=-1)
+    err, share = root_aligned(np.stack([p for p, _ in pairs]), np.stack([t for _, t in pairs]))
     events = ", ".join(f"{k[9:]} {counters.get(k, 0)}" for k in ("temporal_jumps", "temporal_stills"))
-    return f"{1000 * err.mean():.1f} / {np.mean(err < 0.1):.3f}; {len(pairs)} of {frames}; {events}"
+    return f"{1000 * err:.1f} / {share:.3f}; {len(pairs)} of {frames}; {events}"
 
 
 def stills_table(cameras: list[str], n_stills: int, one_place: bool) -> list[str]:
     rows = ["| camera | mode | takes: MPJPE / PCK@10cm; frames; events | stills: the same |", "|---|---|---|---|"]
     for camera in cameras:
-        takes = sessions(camera, one_place)
+        takes = [[(d, gt, c2w) for d, gt in pairs] for pairs, c2w in sessions(camera, one_place)]
         rng = np.random.default_rng(0)
         stills = [takes[k % len(takes)][rng.integers(len(takes[k % len(takes)]))] for k in range(n_stills)]
         for mode in MODES:
@@ -135,25 +131,21 @@ def sequences_table() -> list[str]:
         raw, conf = regress_sequences(data, regressor, 1)
         found, truth = data["found"], data["joints"].astype(np.float64)
         world = guarded(raw, found, True, None)
-        err = np.linalg.norm(world - world[:, :, :1] + truth[:, :, :1] - truth, axis=-1)[found]
-        rows.append(f"| {name} | per frame | {int(found.sum())} | {1000 * err.mean():.1f} / {np.mean(err < 0.1):.4f} | |")
+        err, share = root_aligned(world[found], truth[found])
+        rows.append(f"| {name} | per frame | {int(found.sum())} | {1000 * err:.1f} / {share:.4f} | |")
         for lag in (0, 2):
-            refiner = TemporalRefiner(temporal_model_path(lag))
-            errs, events = [], np.zeros(2, int)
+            refiner = TemporalRefiner(temporal_model_path(lag))  # its counters add up over the sequences
+            est, gt = [], []
             for s in range(len(world)):
                 refiner.reset()
-                before = np.array([refiner.jumps, refiner.stills])
-                out = {}
-                for f in np.flatnonzero(found[s]):
-                    r = refiner(f * period, world[s, f], conf[s, f], data["to_world"][s, f])
-                    if r is not None:
-                        out[r.t_ns // period] = r.joints
-                out.update({r.t_ns // period: r.joints for r in refiner.flush()})
-                events += np.array([refiner.jumps, refiner.stills]) - before
-                errs += [np.linalg.norm(j - j[:1] + truth[s, f, :1] - truth[s, f], axis=-1) for f, j in out.items()]
-            e = np.stack(errs)
-            rows.append(f"| {name} | {'online' if lag == 0 else 'lag 2'} | {len(e)} | {1000 * e.mean():.1f} / "
-                        f"{np.mean(e < 0.1):.4f} | {', '.join(map(str, events))} |")
+                out = [refiner(f * period, world[s, f], conf[s, f], data["to_world"][s, f])
+                       for f in np.flatnonzero(found[s])]
+                for r in [r for r in out if r is not None] + refiner.flush():
+                    est.append(r.joints)
+                    gt.append(truth[s, r.t_ns // period])
+            err, share = root_aligned(np.stack(est), np.stack(gt))
+            rows.append(f"| {name} | {'online' if lag == 0 else 'lag 2'} | {len(est)} | {1000 * err:.1f} / "
+                        f"{share:.4f} | {refiner.jumps}, {refiner.stills} |")
         for row in rows[-3:]:
             print(row, flush=True)
     return rows

@@ -226,13 +226,12 @@ class TemporalRefiner:
         t_ns = int(t_ns)
         if self._end > self._start and t_ns <= self._times[self._end - 1]:
             self.reset()  # time went backwards (a new replay): start over
-        jump = broke = False
+        jump = False
         if self._end > self._start:
             last = self._joints[self._end - 1]
             jump = np.linalg.norm(joints_world - last, axis=1).mean() > RESTART_JUMP_M
             periods = max(1.0, (t_ns - int(self._times[self._end - 1])) * 1e-9 * self.fps)
-            broke = jump or pose_change(joints_world, last) > BREAK_POSE_M * periods
-            self._breaks.append(broke)
+            self._breaks.append(jump or pose_change(joints_world, last) > BREAK_POSE_M * periods)
             self._stills = sum(self._breaks) >= (STILLS_KEEP if self._stills else STILLS_BREAKS)
         self._append(t_ns, joints_world, confidence)
         if jump:
@@ -244,7 +243,7 @@ class TemporalRefiner:
         # samples old (lag 0: this one). Where the finder missed a frame, the frames owed are
         # given one a call, a frame later each, until the missed frame's turn comes: none is skipped.
         due = int(np.searchsorted(times, t_ns - (self.lag - 0.5) * 1e9 / self.fps, side="right")) - 1
-        k = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
+        k = self._first_owed(times)
         if due < 0 or k > due:
             return None
         at = self._start + k
@@ -273,10 +272,13 @@ class TemporalRefiner:
         come."""
         if self._to_world is None or self._end == self._start:
             return []
-        times = self._times[self._start:self._end]
-        first = 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
         give = self._as_read if self._stills else self._estimate
+        first = self._first_owed(self._times[self._start:self._end])
         return [give(at) for at in range(self._start + first, self._end)]
+
+    def _first_owed(self, times: np.ndarray) -> int:
+        """Index in the live history ``times`` of the oldest frame not yet estimated."""
+        return 0 if self._emitted is None else int(np.searchsorted(times, self._emitted, side="right"))
 
     def _as_read(self, at: int) -> RefinedSkeleton:
         """The observation at index ``at`` as the regressor read it (its history holds other
