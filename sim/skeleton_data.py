@@ -134,6 +134,7 @@ class Job:
     edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
     hard_views: bool = False  # realism views drawn with sim.sensor_realism.HARD_VIEWS
     raised_leg: str = ""  # a realism job performed in sim.postures' "knee-up" or "kick" posture
+    posture: str = ""  # a sequence job without realism performed in this sim.postures posture
 
     @property
     def view_odds(self):

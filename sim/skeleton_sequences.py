@@ -11,14 +11,17 @@ the current skeleton model on the stored samples, so the data outlives any one m
 Splits and held-out subjects / bodies are those of ``sim.skeleton_data``; "val" is the goal's
 setting (OAK-D, 1.5-4 m). With ``realism`` (training only), sequences are seen as users' sensors
 see people (``sim.sensor_realism``); a sequence without extrinsics stores each frame's truth in
-the world the finder estimated for it. Jobs are seeded, so the result does not depend on the
-worker count.
+the world the finder estimated for it. Without it, ``in_place_share`` of the sequences are
+performed in place (``sim.postures`` ``in-place``): the shared clips mostly cross the room,
+and a performer in front of a desk or a monitor moves on the spot. Jobs are seeded, so the result
+does not depend on the worker count.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import replace
 
 import numpy as np
 
@@ -68,6 +71,10 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
         from sim.sensor_realism import realism_motion
 
         motion, posture = realism_motion(motion, job.seed)
+    elif job.posture:
+        from sim.postures import apply_posture
+
+        motion = apply_posture(motion, job.posture)
     root, joints = grounded_joints(motion, body)
     span = min(len(root), SEQUENCE_FRAMES)
     start = int(rng.integers(0, len(root) - span + 1))
@@ -113,11 +120,13 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
 
 
 def _cache_path(split: str, n_sequences: int, seed: int, anny: int = 0, anny_share: float = 0.0,
-                realism: bool = False, edge_jump_share: float | None = None):
+                realism: bool = False, edge_jump_share: float | None = None, in_place_share: float = 0.0):
     fields = {"split": split, "n": n_sequences, "seed": seed, "frames": SEQUENCE_FRAMES,
               "fps": SEQUENCE_FPS, "v": 1, "val_subjects": sorted(VAL_SUBJECTS)}
     if edge_jump_share is not None:
         fields.update(edge_jump_share=edge_jump_share)
+    if in_place_share > 0:  # without it, the key (and the caches) of the clips as recorded
+        fields.update(in_place_share=in_place_share)
     if realism:
         from sim.sensor_realism import REALISM_VERSION
 
@@ -134,11 +143,11 @@ def _load(path) -> dict[str, np.ndarray]:
 
 
 def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, anny_share: float,
-                           realism: bool = False, edge_jump_share: float | None = None
-                           ) -> dict[str, np.ndarray] | None:
+                           realism: bool = False, edge_jump_share: float | None = None,
+                           in_place_share: float = 0.0) -> dict[str, np.ndarray] | None:
     """The cached sequences of the same split, seed and bodies with the most sequences below n, if any."""
     def path(n: int):
-        return _cache_path(split, n, seed, anny, anny_share, realism, edge_jump_share)
+        return _cache_path(split, n, seed, anny, anny_share, realism, edge_jump_share, in_place_share)
 
     best = max((n for n in range(1, n_sequences) if path(n).is_file()), default=None)
     return None if best is None else _load(path(best))
@@ -146,21 +155,25 @@ def _largest_cached_prefix(split: str, n_sequences: int, seed: int, anny: int, a
 
 def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int = 2, cache: bool = True,
                        progress: bool = False, anny: int = 0, anny_share: float = 0.0,
-                       realism: bool = False, edge_jump_share: float | None = None) -> dict[str, np.ndarray]:
+                       realism: bool = False, edge_jump_share: float | None = None,
+                       in_place_share: float = 0.0) -> dict[str, np.ndarray]:
     """The sequences of a split (cached under .cache/skeleton_data). anny > 0: training
     sequences take one of ``anny`` on-demand Anny phenotypes (the per-frame data's,
     ``sim.skeleton_data.anny_phenotypes``; the train extra) with probability ``anny_share``.
 
     Returns points (S, F, 512, 3) float32 person frame, to_world (S, F, 4, 4), found (S, F) bool,
     joints (S, F, 22, 3) float32 world, visible (S, F, 22) bool, t_ns (S, F) int64, and per
-    sequence clip / body / camera (S,) str, subject (S,) int32, closeup (S,) bool. realism:
+    sequence clip / body / camera (S,) str, subject (S,) int32, closeup / in_place (S,) bool. realism:
     training sequences as users' sensors see people (module doc). edge_jump_share: the finder's
-    (PreprocessConfig), as the regressor the sequences are for was trained with."""
+    (PreprocessConfig), as the regressor the sequences are for was trained with. in_place_share:
+    the share of sequences without realism performed in place (drawn from a stream of
+    its own: the other sequences are those of the plan without it)."""
     if split not in ("train", "val"):
         raise UserInputError(f"sequence data has splits train and val, not {split!r}")
     anny = anny if split == "train" and anny_share > 0 else 0
     realism = realism and split == "train"
-    path = _cache_path(split, n_sequences, seed, anny, anny_share, realism, edge_jump_share)
+    in_place_share = 0.0 if realism else in_place_share
+    path = _cache_path(split, n_sequences, seed, anny, anny_share, realism, edge_jump_share, in_place_share)
     if cache and path.is_file():
         return _load(path)
     # plan_jobs plans ~5 % spare jobs for the per-frame data; sequences keep exactly n. Its plan
@@ -168,8 +181,11 @@ def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int
     phenotypes = anny_phenotypes(anny, seed) if anny else None  # the per-frame data's, same seed
     jobs = plan_jobs(split, n_sequences, seed + 1000, frames_per_job=1, anny=phenotypes,
                      anny_share=anny_share, realism=realism, edge_jump_share=edge_jump_share)[:n_sequences]
+    if in_place_share > 0:
+        draws = np.random.default_rng([seed, 31]).random(len(jobs))
+        jobs = [replace(j, posture="in-place") if u < in_place_share else j for j, u in zip(jobs, draws)]
     prefix = _largest_cached_prefix(split, n_sequences, seed, anny, anny_share, realism,
-                                    edge_jump_share) if cache else None
+                                    edge_jump_share, in_place_share) if cache else None
     done = len(prefix["found"]) if prefix else 0
     if phenotypes:
         build_bodies(sorted({j.body for j in jobs[done:] if j.body.startswith("anny:")}), progress)
@@ -181,6 +197,7 @@ def generate_sequences(split: str, n_sequences: int, seed: int = 0, workers: int
         data[key] = np.array([getattr(j, key) for j in jobs])
     data["subject"] = np.array([j.subject for j in jobs], np.int32)
     data["closeup"] = np.array([j.closeup for j in jobs], bool)
+    data["in_place"] = np.array([j.posture == "in-place" for j in jobs], bool)
     if cache:
         save_cache(path, data)
     return data

@@ -355,6 +355,11 @@ def main(argv: list[str] | None = None) -> dict:
     # for users' sensors.
     p.add_argument("--realism", action=argparse.BooleanOptionalAction, default=False,
                    help="training sequences as users' sensors see people (sim.sensor_realism; default off)")
+    # The shared clips mostly cross the room; trained on them alone, the online model was worse
+    # than the regressor alone on performers moving on the spot (docs/skeleton.md).
+    p.add_argument("--in-place-share", type=float, default=0.3,
+                   help="share of training sequences performed in place (sim.postures in-place; default 0.3; "
+                        "not with --realism, whose postures include it)")
     p.add_argument("--regressor", type=Path, default=DEFAULT_MODEL)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2)
@@ -375,9 +380,13 @@ def main(argv: list[str] | None = None) -> dict:
     # test): the model learns the errors the regressor makes on what the runtime gives it.
     edges = SkeletonRegressor(args.regressor).edge_jump_share
     data = {"train": generate_sequences("train", n_train, seed=args.seed, workers=args.workers, progress=progress,
-                                        realism=args.realism, edge_jump_share=edges),
+                                        realism=args.realism, edge_jump_share=edges,
+                                        in_place_share=args.in_place_share),
             "val": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers, progress=progress,
-                                      edge_jump_share=edges)}
+                                      edge_jump_share=edges),
+            # The same held-out clips and bodies performed on the spot, as at a desk.
+            "val_in_place": generate_sequences("val", n_val, seed=args.seed + 1, workers=args.workers,
+                                               progress=progress, edge_jump_share=edges, in_place_share=1.0)}
     if n_anny:  # presets-only sequences, then Anny-mixed ones: the first set's cache stays valid
         from models.train.anny_bodies import ensure_built
         from sim.skeleton_data import anny_phenotypes
@@ -385,7 +394,7 @@ def main(argv: list[str] | None = None) -> dict:
         ensure_built(anny_phenotypes(args.anny, args.seed + 2), progress)  # into the body cache, once
         more = generate_sequences("train", n_anny, seed=args.seed + 2, workers=args.workers, progress=progress,
                                   anny=args.anny, anny_share=args.anny_share, realism=args.realism,
-                                  edge_jump_share=edges)
+                                  edge_jump_share=edges, in_place_share=args.in_place_share)
         data["train"] = {k: np.concatenate([data["train"][k], more[k]]) for k in data["train"]}
     examples, per_frame = {}, {}
     for split, d in data.items():
@@ -402,6 +411,10 @@ def main(argv: list[str] | None = None) -> dict:
     deployed, reference = refine_onnx(onnx_path, ex["features"]), refine(model, ex["features"])
     results = validation_results(val, ex, raw_world, {"temporal": to_world_of(ex, deployed, raw_world.shape),
                                                       "temporal_float32": to_world_of(ex, reference, raw_world.shape)})
+    in_place, in_place_ex = data["val_in_place"], examples["val_in_place"]
+    in_place_raw = per_frame["val_in_place"][0]
+    in_place_results = validation_results(in_place, in_place_ex, in_place_raw, {"temporal": to_world_of(
+        in_place_ex, refine_onnx(onnx_path, in_place_ex["features"]), in_place_raw.shape)})
     card = {
         "model": "skeleton_temporal", "file": onnx_path.name, "architecture": "TemporalRefineNet (MLP)",
         "parameters": int(sum(p.numel() for p in model.parameters())),
@@ -420,13 +433,15 @@ def main(argv: list[str] | None = None) -> dict:
                    # Whether the training sequences were drawn as users' sensors see people
                    # (sim.sensor_realism): models trained with and without it differ by millimetres.
                    "realism": bool(args.realism),
+                   "in_place_share": 0.0 if args.realism else args.in_place_share,
                    # The finder's depth-edge test the sequences were sampled with (the regressor's).
                    "edge_jump_share": edges},
         "training": log, "data_seconds": data_seconds,
         "data": {split: {"sequences": int(len(d["found"])), "frames_per_sequence": SEQUENCE_FRAMES,
                          "found_frames": int(d["found"].sum()), "clips": int(len(np.unique(d["clip"]))),
                          "bodies": sorted(b for b in np.unique(d["body"]).tolist() if not b.startswith("anny:")),
-                         "anny_sequences": int(np.char.startswith(d["body"].astype(str), "anny:").sum())}
+                         "anny_sequences": int(np.char.startswith(d["body"].astype(str), "anny:").sum()),
+                         "in_place_sequences": int(d["in_place"].sum()) if "in_place" in d else 0}
                  for split, d in data.items()},
         "train_sets": [{"sequences": n_train, "seed": args.seed, "bodies": "training presets"}]
         + ([{"sequences": n_anny, "seed": args.seed + 2, "anny_phenotypes": args.anny, "anny_share": args.anny_share,
@@ -434,15 +449,17 @@ def main(argv: list[str] | None = None) -> dict:
                        "(sim.skeleton_data.anny_phenotypes, none near a held-out preset)"}] if n_anny else []),
         "split": {"val_subjects": sorted(VAL_SUBJECTS),
                   "note": "val: OAK-D 1.5-4 m, unseen CMU subjects and unseen bodies (sim.skeleton_sequences); "
+                          "val_in_place: the same sequences performed in place (sim.postures in-place); "
                           "on_performer: frames where the person finder found the performer (the setting of "
                           "the per-frame card); all_found_frames: also frames where it picked clutter"},
-        "metrics": {"val": results}, "seed": args.seed, "threads": args.threads,
+        "metrics": {"val": results, "val_in_place": in_place_results}, "seed": args.seed, "threads": args.threads,
         "command": "python -m models.train.train_skeleton_temporal "
                    + shlex.join(argv if argv is not None else sys.argv[1:]),
         "software": {"torch": torch.__version__, "python": platform.python_version()},
     }
     onnx_path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
-    for name, m in results["on_performer"].items():
+    for name, m in [*results["on_performer"].items(),
+                    *((f"{k} in place", v) for k, v in in_place_results["on_performer"].items())]:
         print(f"{name:10s} MPJPE {m['mpjpe_mm']:5.1f}  PA-MPJPE {m['pa_mpjpe_mm']:5.1f}  "
               f"PCK {m['pck_10cm']:.3f}  Acc {m['acc_mm_per_frame2']:5.2f} mm/frame^2", flush=True)
     return card
