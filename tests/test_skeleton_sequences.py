@@ -35,3 +35,22 @@ def test_anny_sequences_cache_apart_and_never_reach_validation(tmp_path, monkeyp
     val = seq.generate_sequences("val", 1, seed=5, anny=64, anny_share=1.0)
     assert built == [] and not any(str(b).startswith("anny:") for b in val["body"])
     assert [p.name for p in tmp_path.glob("seq_val_1_5_*.npz")] == [seq._cache_path("val", 1, 5).name]
+
+
+def test_in_place_sequences_keep_the_performer_on_the_spot_and_the_others_as_they_were(tmp_path, monkeypatch,
+                                                                                        shared_bvh):
+    import sim.skeleton_sequences as seq
+
+    monkeypatch.setattr(seq, "CACHE_DIR", tmp_path)
+    assert seq._cache_path("train", 10, 2, in_place_share=0.3) != seq._cache_path("train", 10, 2)
+    assert seq._cache_path("train", 10, 2, in_place_share=0.0) == seq._cache_path("train", 10, 2)
+    clips = seq.generate_sequences("val", 3, seed=5, cache=False)
+    still = seq.generate_sequences("val", 3, seed=5, cache=False, in_place_share=1.0)
+    assert not clips["in_place"].any() and still["in_place"].all()
+    np.testing.assert_array_equal(still["clip"], clips["clip"])
+    np.testing.assert_array_equal(still["body"], clips["body"])
+
+    def travel(d):  # horizontal pelvis path length per sequence (m)
+        return np.linalg.norm(np.diff(d["joints"][:, :, 0, [0, 2]], axis=1), axis=-1).sum(axis=1)
+
+    assert travel(still).max() < 0.5 * travel(clips).max()
