@@ -92,6 +92,10 @@ def test_quick_temporal_training_exports_a_model_the_stage_runs(tmp_path):
     assert not set(card["data"]["val"]["bodies"]) & set(card["data"]["train"]["bodies"])
     val = card["metrics"]["val"]["on_performer"]
     assert set(val) == {"per_frame", "one_euro", "temporal", "temporal_float32"} and val["temporal"]["mpjpe_mm"] > 0
+    # Training sequences partly performed in place; the held-out ones scored both ways.
+    assert card["recipe"]["in_place_share"] == 0.3
+    assert card["data"]["val_in_place"]["in_place_sequences"] == card["data"]["val"]["sequences"]
+    assert card["metrics"]["val_in_place"]["on_performer"]["temporal"]["mpjpe_mm"] > 0
     stage = SkeletonStage(temporal=tmp_path / "skeleton_temporal.onnx")
     assert stage.temporal is not None and stage.temporal.window == card["window"]
     assert stage.use_filter is False  # the temporal model replaces One Euro by default
