@@ -1,6 +1,6 @@
 """The skeleton stage on unrelated stills against continuous takes: per frame, online, lag 2.
 
-    python -m research.unrelated_frames [--cameras xtion kinect-v1 oak-d] [--stills 96] [--one-place] [--sequences]
+    python -m research.unrelated_frames [--cameras xtion kinect-v1 oak-d] [--stills 96] [--one-place | --in-place] [--sequences]
 
 A folder of depth images need not be a take: a dataset's test frames are often stills drawn
 from many recordings, and replayed as a folder they reach the temporal model as one 30 fps
@@ -33,12 +33,12 @@ MODES = ("per frame", "online", "lag 2")
 PERIOD_NS = 33_333_333
 
 
-def sessions(camera: str, one_place: bool = False) -> list[tuple[list[tuple], np.ndarray]]:
+def sessions(camera: str, one_place: bool = False, in_place: bool = False) -> list[tuple[list[tuple], np.ndarray]]:
     """Per session: its (DepthFrame, GroundTruth) pairs in stream order and its true
     camera_to_world (the depth frames withhold it). Each session has its own camera placement, or
     (``one_place``) all share one, 3 m in front, and the performers move in place (sim.postures
     ``in-place``): stills that differ only in body and pose, as a dataset recorded in one room
-    gives them."""
+    gives them. ``in_place``: each from its own placement, performed in place."""
     import math
 
     from live.evaluation.skeleton import read_eval_session
@@ -48,13 +48,13 @@ def sessions(camera: str, one_place: bool = False) -> list[tuple[list[tuple], np
     cache.mkdir(parents=True, exist_ok=True)
     out = []
     for i, clip in enumerate(CLIPS):
-        path = cache / f"{camera}_{'one_place_' if one_place else ''}{i}.mcap"
+        path = cache / f"{camera}_{'one_place_' if one_place else 'in_place_' if in_place else ''}{i}.mcap"
         if not path.is_file():
             placement = CameraPlacement(3.0, 1.2, 0.0, 0.0) if one_place else \
                 CameraPlacement(2.5 + 0.15 * i, 1.2, math.radians(-30 + 8 * i), 0.0)
             synthesize(SynthOptions(motion=str(assets.bvh_dir() / f"{clip}.bvh"), body=BODIES[i % len(BODIES)],
                                     camera=camera, seconds=4.0, seed=i, placement=placement, hide_extrinsics=True,
-                                    posture="in-place" if one_place else "clip"), path)
+                                    posture="in-place" if one_place or in_place else "clip"), path)
         session = read_eval_session(path)
         out.append((session.pairs, session.true_camera_to_world))
     return out
@@ -95,10 +95,10 @@ def scores(pairs: list[tuple[np.ndarray, np.ndarray]], frames: int, counters: di
     return f"{1000 * err:.1f} / {share:.3f}; {len(pairs)} of {frames}; {events}"
 
 
-def stills_table(cameras: list[str], n_stills: int, one_place: bool) -> list[str]:
+def stills_table(cameras: list[str], n_stills: int, one_place: bool, in_place: bool = False) -> list[str]:
     rows = ["| camera | mode | takes: MPJPE / PCK@10cm; frames; events | stills: the same |", "|---|---|---|---|"]
     for camera in cameras:
-        takes = [[(d, gt, c2w) for d, gt in pairs] for pairs, c2w in sessions(camera, one_place)]
+        takes = [[(d, gt, c2w) for d, gt in pairs] for pairs, c2w in sessions(camera, one_place, in_place)]
         rng = np.random.default_rng(0)
         stills = [takes[k % len(takes)][rng.integers(len(takes[k % len(takes)]))] for k in range(n_stills)]
         for mode in MODES:
@@ -107,7 +107,7 @@ def stills_table(cameras: list[str], n_stills: int, one_place: bool) -> list[str
             counters = {k: sum(c.get(k, 0) for _, c in runs) for k in runs[0][1]}
             take_cell = scores(pairs, sum(map(len, takes)), counters)
             still_pairs, still_counters = run_stage(stills, mode)
-            where = ", one place" if one_place else ""
+            where = ", one place" if one_place else ", in place" if in_place else ""
             rows.append(f"| {camera}{where} | {mode} | {take_cell} | {scores(still_pairs, n_stills, still_counters)} |")
             print(rows[-1], flush=True)
     return rows
@@ -155,11 +155,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m research.unrelated_frames", description=__doc__.split("\n\n")[0])
     ap.add_argument("--cameras", nargs="+", default=["xtion", "kinect-v1", "oak-d"])
     ap.add_argument("--stills", type=int, default=96, help="stills drawn from each camera's sessions")
-    ap.add_argument("--one-place", action="store_true",
-                    help="all sessions from one camera placement, performed in place")
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("--one-place", action="store_true",
+                       help="all sessions from one camera placement, performed in place")
+    where.add_argument("--in-place", action="store_true",
+                       help="each session from its own camera placement, performed in place")
     ap.add_argument("--sequences", action="store_true", help="also the temporal models on held-out sequences")
     args = ap.parse_args(argv)
-    rows = stills_table(args.cameras, args.stills, args.one_place)
+    rows = stills_table(args.cameras, args.stills, args.one_place, args.in_place)
     if args.sequences:
         rows += [""] + sequences_table()
     print("\n".join(rows))
