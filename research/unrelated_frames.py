@@ -79,8 +79,11 @@ def run_stage(frames: list[tuple], mode: str) -> tuple[list[tuple[np.ndarray, np
         if result.skeleton is not None:
             skeletons.append(result.skeleton)
     skeletons += stage.flush()
-    return [(sk.joints, truth_in_solved_frame(*truth[sk.t_ns][:1], sk.camera_to_world, truth[sk.t_ns][1]))
-            for sk in skeletons], stage.counters
+    pairs = []
+    for sk in skeletons:
+        joints, true_c2w = truth[sk.t_ns]
+        pairs.append((sk.joints, truth_in_solved_frame(joints, sk.camera_to_world, true_c2w)))
+    return pairs, stage.counters
 
 
 def root_aligned(est: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
@@ -101,13 +104,13 @@ def stills_table(cameras: list[str], n_stills: int, one_place: bool, in_place: b
         takes = [[(d, gt, c2w) for d, gt in pairs] for pairs, c2w in sessions(camera, one_place, in_place)]
         rng = np.random.default_rng(0)
         stills = [takes[k % len(takes)][rng.integers(len(takes[k % len(takes)]))] for k in range(n_stills)]
+        where = ", one place" if one_place else ", in place" if in_place else ""
         for mode in MODES:
             runs = [run_stage(take, mode) for take in takes]
             pairs = [p for r, _ in runs for p in r]
             counters = {k: sum(c.get(k, 0) for _, c in runs) for k in runs[0][1]}
             take_cell = scores(pairs, sum(map(len, takes)), counters)
             still_pairs, still_counters = run_stage(stills, mode)
-            where = ", one place" if one_place else ", in place" if in_place else ""
             rows.append(f"| {camera}{where} | {mode} | {take_cell} | {scores(still_pairs, n_stills, still_counters)} |")
             print(rows[-1], flush=True)
     return rows

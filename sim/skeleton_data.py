@@ -133,8 +133,9 @@ class Job:
     realism: bool = False
     edge_jump_share: float | None = None  # PreprocessConfig.edge_jump_share of the finder
     hard_views: bool = False  # realism views drawn with sim.sensor_realism.HARD_VIEWS
-    raised_leg: str = ""  # a realism job performed in sim.postures' "knee-up" or "kick" posture
-    posture: str = ""  # a sequence job without realism performed in this sim.postures posture
+    # A sim.postures posture the job is performed in, in place of a realism job's random one:
+    # raised legs ("knee-up", "kick") in realism training, "in-place" in sequences without realism.
+    posture: str = ""
 
     @property
     def view_odds(self):
@@ -181,12 +182,12 @@ def plan_jobs(split: str, n_samples: int, seed: int, frames_per_job: int = FRAME
         if split == "train" and anny and anny_share > 0 and rng.random() < anny_share:
             body = anny[int(rng.integers(len(anny)))]
         # From a stream of its own: with or without raised legs, the jobs are the same.
-        raised_leg = ""
+        posture = ""
         if realism and split == "train" and knee_up_share + kick_share > 0:
             u = knee_rng.random()
-            raised_leg = "knee-up" if u < knee_up_share else "kick" if u < knee_up_share + kick_share else ""
+            posture = "knee-up" if u < knee_up_share else "kick" if u < knee_up_share + kick_share else ""
         jobs.append(Job(clip.file, -1 if clip.subject is None else clip.subject, body, camera, closeup,
-                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard, raised_leg))
+                        int(rng.integers(2**31)), split, realism, edge_jump_share, hard, posture))
     return jobs
 
 
@@ -264,6 +265,20 @@ def random_view(job: Job, rng: np.random.Generator):
     return camera, clear_view(random_room(rng, keep_out_m=1.0), c2w[:3, 3])
 
 
+def job_motion(job: Job, motion):
+    """(the job's motion in its posture, the posture's name): the job's own posture, else a
+    realism job's random one (sim.sensor_realism), else the clip as recorded."""
+    if job.posture:
+        from sim.postures import apply_posture
+
+        return apply_posture(motion, job.posture), job.posture
+    if job.realism:
+        from sim.sensor_realism import realism_motion
+
+        return realism_motion(motion, job.seed, job.view_odds)
+    return motion, "clip"
+
+
 def run_job(job: Job) -> dict[str, np.ndarray]:
     """Render one job's frames and extract its samples (arrays with a leading sample axis)."""
     from live.core.depth import between_worlds
@@ -273,17 +288,8 @@ def run_job(job: Job) -> dict[str, np.ndarray]:
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)
-    motion, body = clip_motion(job.clip), body_by_name(job.body)
-    posture = "clip"
-    if job.realism:
-        from sim.sensor_realism import realism_motion
-
-        if job.raised_leg:
-            from sim.postures import apply_posture
-
-            motion, posture = apply_posture(motion, job.raised_leg), job.raised_leg
-        else:
-            motion, posture = realism_motion(motion, job.seed, job.view_odds)
+    motion, posture = job_motion(job, clip_motion(job.clip))
+    body = body_by_name(job.body)
     root, joints = grounded_joints(motion, body)
     t = len(root)
     span = min(t, int(1.0 * motion.fps))  # a 1 s window: the performer stays near its centre
@@ -496,7 +502,7 @@ def describe(data: dict[str, np.ndarray]) -> dict:
             "distance_m": [round(float(data["distance"].min()), 2), round(float(data["distance"].max()), 2)]}
 
 
-__all__ = ["Clip", "Job", "list_clips", "clip_motion", "body_by_name", "split_clips", "split_bodies",
+__all__ = ["Clip", "Job", "list_clips", "clip_motion", "job_motion", "body_by_name", "split_clips", "split_bodies",
            "plan_jobs", "anny_phenotypes", "build_bodies", "run_job", "run_jobs", "save_cache", "random_view",
            "generate", "mirror", "describe", "grounded_joints", "visible_joints", "view_conditions", "VAL_SUBJECTS",
            "VIEW_KEYS",

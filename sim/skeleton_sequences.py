@@ -38,6 +38,7 @@ from sim.skeleton_data import (
     build_bodies,
     clip_motion,
     grounded_joints,
+    job_motion,
     plan_jobs,
     random_view,
     run_jobs,
@@ -65,16 +66,8 @@ def run_sequence_job(job: Job) -> dict[str, np.ndarray]:
     from sim.synth import SyntheticScene
 
     rng = np.random.default_rng(job.seed)
-    motion, body = _motion_at_fps(job.clip), body_by_name(job.body)
-    posture = "clip"
-    if job.realism:
-        from sim.sensor_realism import realism_motion
-
-        motion, posture = realism_motion(motion, job.seed)
-    elif job.posture:
-        from sim.postures import apply_posture
-
-        motion = apply_posture(motion, job.posture)
+    motion, posture = job_motion(job, _motion_at_fps(job.clip))
+    body = body_by_name(job.body)
     root, joints = grounded_joints(motion, body)
     span = min(len(root), SEQUENCE_FRAMES)
     start = int(rng.integers(0, len(root) - span + 1))

@@ -53,14 +53,14 @@ def test_hard_views_weight_training_only_and_leave_the_usual_plan_unchanged():
 def test_raised_legs_are_drawn_for_realism_training_only_and_leave_the_usual_plan_unchanged():
     usual = plan_jobs("train", 4000, seed=0, realism=True)
     raised = plan_jobs("train", 4000, seed=0, realism=True, knee_up_share=0.2)
-    share = np.mean([j.raised_leg == "knee-up" for j in raised])
-    assert 0.15 < share < 0.25 and not any(j.raised_leg for j in usual)
+    share = np.mean([j.posture == "knee-up" for j in raised])
+    assert 0.15 < share < 0.25 and not any(j.posture for j in usual)
     # The same jobs otherwise: the raised legs are drawn from a stream of their own.
     assert [(j.clip, j.body, j.camera, j.closeup) for j in raised] == [(j.clip, j.body, j.camera, j.closeup)
                                                                         for j in usual]
     # Kicks take the draws above the knee raises': the knee-up jobs stay the same jobs.
     kicks = plan_jobs("train", 4000, seed=0, realism=True, knee_up_share=0.2, kick_share=0.1)
-    assert [j.raised_leg == "knee-up" for j in kicks] == [j.raised_leg == "knee-up" for j in raised]
-    assert 0.07 < np.mean([j.raised_leg == "kick" for j in kicks]) < 0.13
-    assert not any(j.raised_leg for j in plan_jobs("val_real", 400, seed=3, knee_up_share=0.5, kick_share=0.5))
-    assert not any(j.raised_leg for j in plan_jobs("train", 400, seed=0, knee_up_share=0.5))  # no realism
+    assert [j.posture == "knee-up" for j in kicks] == [j.posture == "knee-up" for j in raised]
+    assert 0.07 < np.mean([j.posture == "kick" for j in kicks]) < 0.13
+    assert not any(j.posture for j in plan_jobs("val_real", 400, seed=3, knee_up_share=0.5, kick_share=0.5))
+    assert not any(j.posture for j in plan_jobs("train", 400, seed=0, knee_up_share=0.5))  # no realism
